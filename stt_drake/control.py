@@ -1,0 +1,108 @@
+"""Closed-form funnel controller of Sec. 5 for an N-th order pure-feedback system.
+
+Stage 1 (ball funnel around the tube): e₁ = ‖x₁ − c‖/r, ρ₁ = ln((1 + e₁)/(1 − e₁)),
+r₂ = −κ₁ ρ₁ (x₁ − c)  (eq. Control_ras a).
+Stage k ≥ 2 (box funnel around the reference r_k): γ_k(t) = (p_k − q_k)e^{−μ_k t} + q_k,
+e_k = (x_k − r_k)/γ_k, ρ_k = ln((1 + e_k)/(1 − e_k)), ξ_k = 4 γ_k⁻¹ (1 − e_k²)⁻¹
+(element-wise, eq. stage k), r_{k+1} = −κ_k ξ_k ρ_k; the control is u = r_{N+1}.
+
+The law reads measured states only: no model parameter of the plant. It never returns
+NaN or inf: a normalised error at or beyond its funnel boundary is saturated just inside
+(|e| ≤ 1 − 1e-9, so ρ ≤ 21.4) and the invariant monitor reports the violation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: Largest normalised error the law uses; errors beyond it are saturated here.
+ERROR_SATURATION = 1.0 - 1e-9
+
+
+def transformed_error(normalized_error: np.ndarray) -> np.ndarray:
+    """ρ = ln((1 + e)/(1 − e)) = 2 atanh(e), with e saturated to ±ERROR_SATURATION."""
+    return 2.0 * np.arctanh(np.clip(normalized_error, -ERROR_SATURATION, ERROR_SATURATION))
+
+
+@dataclass(frozen=True)
+class BoxFunnel:
+    """γ(t) = (start − end)e^{−rate·t} + end per component (stage k ≥ 2 of Sec. 5).
+
+    Attributes:
+        start: (n,) or scalar p > 0, the half-width at t = 0; must contain |x_k(0) − r_k(0)|.
+        end: (n,) or scalar q ∈ (0, p), the final half-width.
+        rate: (n,) or scalar μ ≥ 0, the decay rate (1/s).
+    """
+
+    start: np.ndarray | float
+    end: np.ndarray | float
+    rate: np.ndarray | float
+
+    def width(self, t: float) -> np.ndarray:
+        start = np.asarray(self.start, dtype=float)
+        end = np.asarray(self.end, dtype=float)
+        return (start - end) * np.exp(-np.asarray(self.rate, dtype=float) * t) + end
+
+
+@dataclass(frozen=True)
+class ControlEvaluation:
+    """One evaluation of the funnel law.
+
+    Attributes:
+        control: (n,) the input u = r_{N+1}.
+        normalized_errors: list of the N normalised errors: e₁ (scalar, as a (1,) array)
+            and e_k (n,) for k ≥ 2, before saturation. |e| < 1 means inside the funnel.
+    """
+
+    control: np.ndarray
+    normalized_errors: list[np.ndarray] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class FunnelController:
+    """The controller of Theorem 4.1 for N = len(kappa) stages.
+
+    Attributes:
+        kappa: κ_1..κ_N (> 0).
+        funnels: the N − 1 box funnels of stages 2..N.
+    """
+
+    kappa: Sequence[float]
+    funnels: Sequence[BoxFunnel] = ()
+
+    def __post_init__(self) -> None:
+        if len(self.kappa) < 1:
+            raise ValueError("kappa: need at least one stage gain")
+        if len(self.funnels) != len(self.kappa) - 1:
+            raise ValueError(
+                f"funnels: {len(self.kappa)} stages need {len(self.kappa) - 1} box funnels, "
+                f"got {len(self.funnels)}"
+            )
+
+    @property
+    def stages(self) -> int:
+        return len(self.kappa)
+
+    def evaluate(
+        self, t: float, states: np.ndarray, center: np.ndarray, radius: float
+    ) -> ControlEvaluation:
+        """Control at time t for stacked states (N, n) = [x_1; ...; x_N] and tube (c, r)."""
+        states = np.asarray(states, dtype=float).reshape(self.stages, -1)
+        if not (np.all(np.isfinite(states)) and np.all(np.isfinite(center))):
+            raise ValueError(f"controller input is not finite: states={states}, center={center}")
+        offset = states[0] - center
+        distance = float(np.linalg.norm(offset))
+        e1 = distance / radius if radius > 0.0 else np.inf
+        reference = -self.kappa[0] * transformed_error(np.array(e1)) * offset
+        errors = [np.array([e1])]
+        for kappa, funnel, state in zip(self.kappa[1:], self.funnels, states[1:], strict=True):
+            gamma = funnel.width(t)
+            e = (state - reference) / gamma
+            saturated = np.clip(e, -ERROR_SATURATION, ERROR_SATURATION)
+            xi = 4.0 / (gamma * (1.0 - saturated * saturated))
+            reference = -kappa * xi * transformed_error(e)
+            errors.append(e)
+        return ControlEvaluation(control=reference, normalized_errors=errors)

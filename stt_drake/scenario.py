@@ -1,0 +1,556 @@
+"""Scenario files: one YAML file defines one experiment (``diagrams/*.yaml``).
+
+Loaded into dataclasses with ``pydrake.common.yaml.yaml_load_typed`` and then validated
+here, because the loader checks neither array shapes nor the paper's rules. Every rule
+violation raises :class:`ScenarioError` naming the full field path and the rule.
+"""
+
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Union
+
+import numpy as np
+import yaml
+from pydrake.common.yaml import yaml_load_typed
+from pydrake.systems.analysis import SimulatorConfig
+
+from stt_drake.belief import ObstacleBelief
+from stt_drake.motion import ConstantVelocity, Motion, Oscillation, SigmaSchedule, Waypoints
+from stt_drake.probability import avoid_probability
+from stt_drake.tube import default_nu, minimum_nu
+
+
+class ScenarioError(ValueError):
+    """A scenario file breaks a rule; the message names the field path and the rule."""
+
+
+@dataclass
+class Obstacle:
+    """One uncertain obstacle (Def. 2.1): a ball of `radius` around a Gaussian centre.
+
+    `sigma` is the standard deviation of the centre per axis in metres (σ, not σ²);
+    `sigma_schedule`, when given, replaces it with a piecewise-linear σ(t).
+    """
+
+    motion: Motion = field(default_factory=ConstantVelocity)
+    radius: float = 0.15
+    sigma: float = 0.1
+    sigma_schedule: SigmaSchedule | None = None
+    epsilon: float = 0.9
+    p_d: float = 0.9999
+
+
+@dataclass
+class RandomObstacles:
+    """A field of oscillating obstacles drawn from a seeded generator.
+
+    Means are uniform in [region_min, region_max]; sigma, epsilon, oscillation amplitude
+    (per axis) and frequency are uniform in their [low, high] ranges. A draw is kept only
+    if its whole path stays clear of the start and the target with probability ≥ p_d
+    (checked with the buffered radius r_o + r_min; Assumption 3.1 and the initial
+    condition of Def. 2.2).
+    """
+
+    count: int = 0
+    seed: int = 0
+    region_min: list[float] = field(default_factory=list)
+    region_max: list[float] = field(default_factory=list)
+    radius: float = 0.3
+    sigma_range: list[float] = field(default_factory=lambda: [0.1, 1.0])
+    epsilon_range: list[float] = field(default_factory=lambda: [0.7, 0.99])
+    p_d: float = 0.9999
+    amplitude_range: list[float] = field(default_factory=lambda: [0.0, 1.0])
+    frequency_range_hz: list[float] = field(default_factory=lambda: [0.01, 0.05])
+
+
+@dataclass
+class TubeConfig:
+    """Tube law constants (eqs. cen_dynamic, rad_sol). `nu` = 0 means "derive it":
+    ν = 2 ln(n_o + 1)/r_min, which keeps r ≥ r_min/2. `update_rate_hz` = 0 integrates the
+    centre in continuous time; > 0 runs the fixed-rate (real-time) discrete update."""
+
+    r_min: float = 0.1
+    r_max: float = 0.3
+    k1: float = 0.5
+    k2: float = 0.4
+    k3: float = 0.4
+    nu: float = 0.0
+    update_rate_hz: float = 0.0
+
+
+@dataclass
+class FunnelConfig:
+    """Box funnel γ(t) = (start − end)e^{−rate t} + end of one stage k ≥ 2 (per axis)."""
+
+    start: list[float] = field(default_factory=list)
+    end: list[float] = field(default_factory=list)
+    rate: list[float] = field(default_factory=list)
+
+
+@dataclass
+class ControllerConfig:
+    """Funnel controller gains κ_1..κ_N and the box funnels of stages 2..N."""
+
+    kappa: list[float] = field(default_factory=lambda: [1.0])
+    funnels: list[FunnelConfig] = field(default_factory=list)
+
+
+@dataclass
+class OmniRobot:
+    """Three-wheel omnidirectional base. True wheel and base radii differ from the nominal
+    ones its drive interface uses; the STT controller knows neither. `disturbance_amplitude`
+    (m/s per world axis) and `disturbance_frequency_hz` set an additive sinusoidal
+    velocity disturbance. `initial_position` defaults to the scenario's start."""
+
+    wheel_radius: float = 0.052
+    base_radius: float = 0.21
+    nominal_wheel_radius: float = 0.05
+    nominal_base_radius: float = 0.2
+    heading_gain: float = 2.0
+    initial_heading: float = 0.0
+    initial_position: list[float] = field(default_factory=list)
+    disturbance_amplitude: list[float] = field(default_factory=lambda: [0.0, 0.0])
+    disturbance_frequency_hz: float = 0.2
+
+
+Plant = Union[OmniRobot]  # noqa: UP007 (drake yaml needs typing.Union)
+
+#: Output-space dimension each plant works in.
+PLANT_DIMENSION = {OmniRobot: 2}
+
+
+def _default_simulator_config() -> SimulatorConfig:
+    return SimulatorConfig(
+        integration_scheme="runge_kutta3",
+        max_step_size=0.01,
+        accuracy=1e-6,
+        use_error_control=True,
+    )
+
+
+@dataclass
+class Scenario:
+    """One PrT-RAS experiment: task, obstacles, tube, controller, plant, simulation."""
+
+    name: str = ""
+    start: list[float] = field(default_factory=list)
+    initial_set_radius: float = 0.5
+    target: list[float] = field(default_factory=list)
+    target_set_radius: float = 0.5
+    duration: float = 30.0
+    seed: int = 0
+    obstacles: list[Obstacle] = field(default_factory=list)
+    random_obstacles: RandomObstacles | None = None
+    tube: TubeConfig = field(default_factory=TubeConfig)
+    controller: ControllerConfig = field(default_factory=ControllerConfig)
+    plant: Plant = field(default_factory=OmniRobot)
+    simulator: SimulatorConfig = field(default_factory=_default_simulator_config)
+    log_period: float = 0.02
+    strict: bool = False
+
+    @property
+    def dimension(self) -> int:
+        return len(self.start)
+
+    @property
+    def nu(self) -> float:
+        """The soft-min sharpness in use (the given one, or the derived default)."""
+        if self.tube.nu > 0.0:
+            return self.tube.nu
+        return default_nu(len(self.obstacles), self.tube.r_min)
+
+    def belief_at(self, t: float) -> ObstacleBelief:
+        """The belief of every obstacle at time t."""
+        return ObstacleBelief(
+            mean=np.array([o.motion.position(t) for o in self.obstacles]).reshape(
+                len(self.obstacles), self.dimension
+            ),
+            sigma=np.array([obstacle_sigma(o, t) for o in self.obstacles]),
+            radius=np.array([o.radius for o in self.obstacles]),
+            epsilon=np.array([o.epsilon for o in self.obstacles]),
+            p_d=np.array([o.p_d for o in self.obstacles]),
+        )
+
+
+def obstacle_sigma(obstacle: Obstacle, t: float) -> float:
+    """σ_j(t): the schedule where given, else the constant `sigma`."""
+    if obstacle.sigma_schedule is not None:
+        return obstacle.sigma_schedule.sigma(t)
+    return obstacle.sigma
+
+
+# --------------------------------------------------------------------------- loading
+
+
+class _TaggedLoader(yaml.SafeLoader):
+    """Reads Drake's ``!Tag {...}`` variant syntax as plain mappings for the key check."""
+
+
+_TaggedLoader.add_multi_constructor(
+    "!", lambda loader, suffix, node: {"__tag__": suffix, **loader.construct_mapping(node)}
+)
+
+
+def _check_keys(schema: Any, data: Any, path: str) -> None:
+    """Reject unknown keys with their full path (Drake's loader omits the nesting path)."""
+    if not isinstance(data, dict):
+        return
+    variants = getattr(schema, "__args__", None)
+    if variants is not None:  # Union / Optional: pick the tagged (or the only data) class
+        classes = [v for v in variants if v is not type(None)]
+        tag = data.get("__tag__")
+        named = [c for c in classes if c.__name__ == tag]
+        if tag is not None and not named:
+            known = ", ".join("!" + c.__name__ for c in classes)
+            raise ScenarioError(f"{path}: unknown type !{tag}; expected one of {known}")
+        schema = named[0] if named else classes[0]
+    fields = getattr(schema, "__dataclass_fields__", None)
+    if fields is None:
+        return
+    hints = _type_hints(schema)
+    for key, value in data.items():
+        if key == "__tag__":
+            continue
+        if key not in fields:
+            known = ", ".join(fields)
+            raise ScenarioError(f"{path}.{key}: unknown field; known fields are: {known}")
+        hint = hints[key]
+        item_schema = getattr(hint, "__args__", [None])[0] if _is_list(hint) else hint
+        if isinstance(value, list):
+            for i, item in enumerate(value):
+                _check_keys(item_schema, item, f"{path}.{key}[{i}]")
+        else:
+            _check_keys(hint, value, f"{path}.{key}")
+
+
+def _is_list(hint: Any) -> bool:
+    return getattr(hint, "__origin__", None) is list
+
+
+def _type_hints(schema: type) -> dict[str, Any]:
+    import typing
+
+    return typing.get_type_hints(schema)
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Load, expand and validate a scenario file; raises ScenarioError on any bad input."""
+    path = Path(path)
+    if not path.is_file():
+        raise ScenarioError(f"{path}: no such scenario file")
+    return parse_scenario(path.read_text(), default_name=path.stem)
+
+
+def parse_scenario(text: str, default_name: str = "scenario") -> Scenario:
+    """Parse scenario YAML text (see :func:`load_scenario`)."""
+    try:
+        raw = yaml.load(text, Loader=_TaggedLoader)
+    except yaml.YAMLError as error:
+        raise ScenarioError(f"scenario: not valid YAML: {error}") from None
+    if not isinstance(raw, dict):
+        raise ScenarioError("scenario: the file must be a mapping of fields")
+    _check_keys(Scenario, raw, "scenario")
+    try:
+        scenario = yaml_load_typed(schema=Scenario, data=text)
+    except (RuntimeError, ValueError, TypeError) as error:
+        raise ScenarioError(f"scenario: {error}") from None
+    if not scenario.name:
+        scenario.name = default_name
+    expand_random_obstacles(scenario)
+    validate(scenario)
+    return scenario
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def _require(condition: bool, path: str, rule: str, value: Any) -> None:
+    if not condition:
+        raise ScenarioError(f"{path}: {rule} (got {value!r})")
+
+
+def _require_vector(value: list[float], length: int, path: str) -> None:
+    _require(len(value) == length, path, f"must have {length} entries", value)
+    _require(all(math.isfinite(v) for v in value), path, "must be finite", value)
+
+
+def _require_range(value: list[float], path: str, low: float, high: float) -> None:
+    _require(len(value) == 2 and value[0] <= value[1], path, "must be [low, high]", value)
+    _require(low <= value[0] and value[1] <= high, path, f"must lie in [{low}, {high}]", value)
+
+
+def _validate_motion(motion: Motion, n: int, path: str) -> None:
+    if isinstance(motion, ConstantVelocity):
+        _require_vector(motion.start, n, f"{path}.start")
+        _require_vector(motion.velocity, n, f"{path}.velocity")
+    elif isinstance(motion, Oscillation):
+        _require_vector(motion.center, n, f"{path}.center")
+        _require_vector(motion.amplitude, n, f"{path}.amplitude")
+        if motion.phase:
+            _require_vector(motion.phase, n, f"{path}.phase")
+        _require(
+            motion.frequency_hz >= 0.0, f"{path}.frequency_hz", "must be ≥ 0", motion.frequency_hz
+        )
+    elif isinstance(motion, Waypoints):
+        _require(len(motion.times) >= 1, f"{path}.times", "needs at least one time", motion.times)
+        _require(
+            len(motion.positions) == len(motion.times),
+            f"{path}.positions",
+            "needs one position per time",
+            motion.positions,
+        )
+        _require(
+            bool(np.all(np.diff(motion.times) > 0)), f"{path}.times", "must increase", motion.times
+        )
+        for i, position in enumerate(motion.positions):
+            _require_vector(position, n, f"{path}.positions[{i}]")
+
+
+def _validate_obstacle(obstacle: Obstacle, n: int, path: str) -> None:
+    _validate_motion(obstacle.motion, n, f"{path}.motion")
+    _require(obstacle.radius > 0.0, f"{path}.radius", "must be > 0 (metres)", obstacle.radius)
+    _require(
+        obstacle.sigma > 0.0,
+        f"{path}.sigma",
+        "must be > 0 (a standard deviation in metres)",
+        obstacle.sigma,
+    )
+    if obstacle.sigma_schedule is not None:
+        schedule = obstacle.sigma_schedule
+        _require(
+            len(schedule.times) >= 1 and len(schedule.times) == len(schedule.values),
+            f"{path}.sigma_schedule",
+            "needs as many values as times (≥ 1)",
+            schedule,
+        )
+        _require(
+            bool(np.all(np.diff(schedule.times) > 0)),
+            f"{path}.sigma_schedule.times",
+            "must increase",
+            schedule.times,
+        )
+        _require(
+            all(v > 0.0 for v in schedule.values),
+            f"{path}.sigma_schedule.values",
+            "must all be > 0 (standard deviations in metres)",
+            schedule.values,
+        )
+    _require(
+        0.0 < obstacle.epsilon <= 1.0, f"{path}.epsilon", "must lie in (0, 1]", obstacle.epsilon
+    )
+    _require(
+        obstacle.epsilon < obstacle.p_d <= 1.0,
+        f"{path}.p_d",
+        f"must lie in (epsilon, 1] = ({obstacle.epsilon}, 1]",
+        obstacle.p_d,
+    )
+
+
+def _validate_controller(config: ControllerConfig, n: int, stages: int) -> None:
+    path = "scenario.controller"
+    _require(
+        len(config.kappa) == stages,
+        f"{path}.kappa",
+        f"this plant has {stages} stage(s): give {stages} gain(s)",
+        config.kappa,
+    )
+    _require(all(k > 0.0 for k in config.kappa), f"{path}.kappa", "must all be > 0", config.kappa)
+    _require(
+        len(config.funnels) == stages - 1,
+        f"{path}.funnels",
+        f"need {stages - 1} box funnel(s) for stages 2..{stages}",
+        len(config.funnels),
+    )
+    for i, funnel in enumerate(config.funnels):
+        where = f"{path}.funnels[{i}]"
+        for name in ("start", "end", "rate"):
+            _require_vector(getattr(funnel, name), n, f"{where}.{name}")
+        _require(
+            all(0.0 < e < s for s, e in zip(funnel.start, funnel.end, strict=True)),
+            f"{where}.end",
+            "must satisfy 0 < end < start per axis",
+            funnel.end,
+        )
+        _require(all(r >= 0.0 for r in funnel.rate), f"{where}.rate", "must be ≥ 0", funnel.rate)
+
+
+def _validate_plant(scenario: Scenario) -> None:
+    plant, n = scenario.plant, scenario.dimension
+    path = "scenario.plant"
+    expected = PLANT_DIMENSION[type(plant)]
+    _require(
+        n == expected,
+        "scenario.start",
+        f"{type(plant).__name__} works in {expected} dimensions: give {expected} entries",
+        scenario.start,
+    )
+    if isinstance(plant, OmniRobot):
+        for name in ("wheel_radius", "base_radius", "nominal_wheel_radius", "nominal_base_radius"):
+            value = getattr(plant, name)
+            _require(value > 0.0, f"{path}.{name}", "must be > 0 (metres)", value)
+        _require(
+            plant.heading_gain > 0.0, f"{path}.heading_gain", "must be > 0", plant.heading_gain
+        )
+        _require_vector(plant.disturbance_amplitude, n, f"{path}.disturbance_amplitude")
+        if plant.initial_position:
+            _require_vector(plant.initial_position, n, f"{path}.initial_position")
+
+
+def initial_output(scenario: Scenario) -> np.ndarray:
+    """y(0): the plant's initial position where given, else the start point s."""
+    position = getattr(scenario.plant, "initial_position", None)
+    return np.asarray(position if position else scenario.start, dtype=float)
+
+
+def validate(scenario: Scenario) -> None:
+    """Check every rule of the paper and of the file format; raise ScenarioError."""
+    n = scenario.dimension
+    _require(n >= 1, "scenario.start", "must have at least one entry", scenario.start)
+    _require_vector(scenario.start, n, "scenario.start")
+    _require_vector(scenario.target, n, "scenario.target")
+    _require(
+        scenario.duration > 0.0, "scenario.duration", "must be > 0 (seconds)", scenario.duration
+    )
+    _require(
+        scenario.log_period > 0.0,
+        "scenario.log_period",
+        "must be > 0 (seconds)",
+        scenario.log_period,
+    )
+    tube = scenario.tube
+    _require(tube.r_min > 0.0, "scenario.tube.r_min", "must be > 0 (metres)", tube.r_min)
+    _require(
+        tube.r_min < tube.r_max,
+        "scenario.tube.r_max",
+        f"must be > r_min = {tube.r_min}",
+        tube.r_max,
+    )
+    _require(
+        tube.r_max <= scenario.initial_set_radius,
+        "scenario.tube.r_max",
+        f"must be ≤ initial_set_radius = {scenario.initial_set_radius} so Γ(0) ⊂ S",
+        tube.r_max,
+    )
+    _require(
+        tube.r_max <= scenario.target_set_radius,
+        "scenario.tube.r_max",
+        f"must be ≤ target_set_radius = {scenario.target_set_radius} so Γ ⊂ T can hold",
+        tube.r_max,
+    )
+    for name in ("k1", "k2"):
+        _require(
+            getattr(tube, name) > 0.0, f"scenario.tube.{name}", "must be > 0", getattr(tube, name)
+        )
+    _require(tube.k3 >= 0.0, "scenario.tube.k3", "must be ≥ 0", tube.k3)
+    _require(
+        tube.update_rate_hz >= 0.0,
+        "scenario.tube.update_rate_hz",
+        "must be ≥ 0 (0 = continuous time)",
+        tube.update_rate_hz,
+    )
+    for i, obstacle in enumerate(scenario.obstacles):
+        _validate_obstacle(obstacle, n, f"scenario.obstacles[{i}]")
+    bound = minimum_nu(len(scenario.obstacles), tube.r_min)
+    _require(
+        tube.nu == 0.0 or tube.nu > bound,
+        "scenario.tube.nu",
+        f"must exceed ln(n_o + 1)/r_min = {bound:.4g} for {len(scenario.obstacles)} "
+        "obstacles, or the soft-min radius can go negative (0 derives it)",
+        tube.nu,
+    )
+    _validate_plant(scenario)
+    stages = 1 if isinstance(scenario.plant, OmniRobot) else 2
+    _validate_controller(scenario.controller, n, stages)
+    _validate_initial_condition(scenario)
+
+
+def _validate_initial_condition(scenario: Scenario) -> None:
+    """q_j(s, 0) > ε_j for every obstacle (J(0) > 0 in the proof of claim ii), and y(0) ∈ S."""
+    if scenario.obstacles:
+        belief = scenario.belief_at(0.0)
+        q = avoid_probability(
+            np.asarray(scenario.start),
+            belief.mean,
+            belief.sigma,
+            belief.radius + scenario.tube.r_min,
+        )
+        for j in np.flatnonzero(q <= belief.epsilon):
+            raise ScenarioError(
+                f"scenario.start: the initial avoidance condition fails for obstacle {j}: "
+                f"q_{j}(s, 0) = {q[j]:.6g} must exceed epsilon = {belief.epsilon[j]} "
+                f"(move the start or the obstacle) (got {scenario.start!r})"
+            )
+    offset = float(np.linalg.norm(initial_output(scenario) - np.asarray(scenario.start)))
+    _require(
+        offset < scenario.tube.r_min,
+        "scenario.plant.initial_position",
+        f"must lie within r_min = {scenario.tube.r_min} of start so y(0) ∈ Γ(0)",
+        initial_output(scenario).tolist(),
+    )
+
+
+# --------------------------------------------------------------------------- random fields
+
+
+def expand_random_obstacles(scenario: Scenario) -> None:
+    """Append the `random_obstacles` draws to `scenario.obstacles` (seeded, reproducible)."""
+    spec = scenario.random_obstacles
+    if spec is None or spec.count == 0:
+        return
+    n, path = scenario.dimension, "scenario.random_obstacles"
+    _require(spec.count > 0, f"{path}.count", "must be ≥ 0", spec.count)
+    _require_vector(spec.region_min, n, f"{path}.region_min")
+    _require_vector(spec.region_max, n, f"{path}.region_max")
+    _require_range(spec.sigma_range, f"{path}.sigma_range", 1e-9, math.inf)
+    _require_range(spec.epsilon_range, f"{path}.epsilon_range", 1e-9, 1.0)
+    _require(
+        spec.epsilon_range[1] < spec.p_d <= 1.0,
+        f"{path}.p_d",
+        "must lie in (epsilon_range high, 1]",
+        spec.p_d,
+    )
+    _require_range(spec.amplitude_range, f"{path}.amplitude_range", 0.0, math.inf)
+    _require_range(spec.frequency_range_hz, f"{path}.frequency_range_hz", 0.0, math.inf)
+    rng = np.random.default_rng(spec.seed)
+    checkpoints = np.linspace(0.0, scenario.duration, 200)
+    anchors = np.array([scenario.start, scenario.target], dtype=float)
+    accepted: list[Obstacle] = []
+    for _attempt in range(1000 * spec.count):
+        if len(accepted) == spec.count:
+            break
+        candidate = Obstacle(
+            motion=Oscillation(
+                center=rng.uniform(spec.region_min, spec.region_max).tolist(),
+                amplitude=rng.uniform(*spec.amplitude_range, size=n).tolist(),
+                frequency_hz=float(rng.uniform(*spec.frequency_range_hz)),
+                phase=rng.uniform(0.0, 2.0 * np.pi, size=n).tolist(),
+            ),
+            radius=spec.radius,
+            sigma=float(rng.uniform(*spec.sigma_range)),
+            epsilon=float(rng.uniform(*spec.epsilon_range)),
+            p_d=spec.p_d,
+        )
+        path_points = np.array([candidate.motion.position(t) for t in checkpoints])
+        clear = all(
+            np.all(
+                avoid_probability(
+                    anchor,
+                    path_points,
+                    np.full(len(checkpoints), candidate.sigma),
+                    candidate.radius + scenario.tube.r_min,
+                )
+                > spec.p_d
+            )
+            for anchor in anchors
+        )
+        if clear:
+            accepted.append(candidate)
+    _require(
+        len(accepted) == spec.count,
+        f"{path}.count",
+        "could not place that many obstacles clear of start and target; enlarge the region",
+        spec.count,
+    )
+    scenario.obstacles = scenario.obstacles + accepted

@@ -1,0 +1,165 @@
+"""The spatiotemporal tube law (paper Sec. 3): centre velocity, radius and diagnostics.
+
+One call of :meth:`TubeLaw.evaluate` gives, for the tube centre c and the belief of all
+obstacles, the centre velocity ċ of eq. (cen_dynamic), the radius r of eq. (rad_sol) and
+per-obstacle diagnostics (q_j, d̂_j, θ_j).
+
+Fixes to the printed paper (see DESIGN.md):
+* the attraction term is the signed cube root per component, k1·sign(η − c)|η − c|^{1/3};
+* the radius is the log-sum-exp soft-min r = −(1/ν) ln(e^{−ν r_max} + Σ_j e^{−ν d̂_j}),
+  which is always ≤ min(r_max, min_j d̂_j); it stays > 0 only if ν > ln(n_o + 1)/r_min.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from stt_drake.belief import ObstacleBelief
+from stt_drake.probability import PRUNE_HEADROOM_NU, avoid_probability, quantile_distance
+
+
+def minimum_nu(obstacle_count: int, r_min: float) -> float:
+    """Smallest ν for which the soft-min radius is provably positive (claim iii).
+
+    Every d̂_j > r_min while q_j > ε_j, so r ≥ r_min − ln(n_o + 1)/ν.
+    """
+    return float(np.log(obstacle_count + 1) / r_min)
+
+
+def default_nu(obstacle_count: int, r_min: float) -> float:
+    """Twice :func:`minimum_nu`: guarantees r ≥ r_min/2 whenever every q_j > ε_j."""
+    return 2.0 * minimum_nu(obstacle_count, r_min)
+
+
+def signed_cube_root_attraction(error: np.ndarray, k1: float) -> np.ndarray:
+    """k1·sign(e)|e|^{1/3} per component: the finite-time attraction of eq. (cen_dynamic)."""
+    return k1 * np.cbrt(error)
+
+
+def attraction_flow(error: np.ndarray, k1: float, duration: float) -> np.ndarray:
+    """Exact change of c over `duration` under ċ = k1·cbrt(η − c) alone (eq. cen_simplified).
+
+    Per component, |e|^{2/3} decreases linearly at rate 2k1/3 until it reaches 0, so the
+    flow never overshoots η, whatever the step.
+    """
+    remaining = np.maximum(np.abs(error) ** (2.0 / 3.0) - (2.0 / 3.0) * k1 * duration, 0.0)
+    return error - np.sign(error) * remaining**1.5
+
+
+def reach_time(error: np.ndarray, k1: float) -> float:
+    """Time for the attraction alone to bring c to η: max_i 3|e_i|^{2/3}/(2 k1)."""
+    return float(np.max(3.0 * np.abs(error) ** (2.0 / 3.0) / (2.0 * k1)))
+
+
+def null_space_direction(m: np.ndarray, goal_direction: np.ndarray) -> np.ndarray:
+    """v_j ⟂ m_j with |v_j| = |m_j|, varying continuously with m_j (rows are obstacles).
+
+    n = 2: m rotated by +90°. n ≥ 3: the part of the goal direction orthogonal to m,
+    falling back to a fixed axis (e_z, then e_x) where the goal direction is parallel to m.
+    n = 1: zero (R¹ has no orthogonal direction).
+    """
+    count, dimension = m.shape
+    if dimension == 1:
+        return np.zeros_like(m)
+    if dimension == 2:
+        return np.column_stack([-m[:, 1], m[:, 0]])
+    norm_m = np.linalg.norm(m, axis=1, keepdims=True)
+    unit_m = m / np.where(norm_m > 0.0, norm_m, 1.0)
+    direction = np.empty_like(m)
+    candidates = [np.broadcast_to(goal_direction, m.shape)]
+    for axis in (dimension - 1, 0):
+        candidates.append(np.broadcast_to(np.eye(dimension)[axis], m.shape))
+    chosen = np.zeros(count, dtype=bool)
+    for candidate in candidates:
+        orthogonal = candidate - np.sum(candidate * unit_m, axis=1, keepdims=True) * unit_m
+        length = np.linalg.norm(orthogonal, axis=1)
+        usable = ~chosen & (length > 1e-6 * np.maximum(np.linalg.norm(candidate, axis=1), 1e-300))
+        direction[usable] = orthogonal[usable] / length[usable, None]
+        chosen |= usable
+    return direction * norm_m
+
+
+@dataclass(frozen=True)
+class TubeEvaluation:
+    """Everything the tube law gives at one instant.
+
+    Attributes:
+        center_rate: (n,) ċ of eq. (cen_dynamic), m/s.
+        radius: r of eq. (rad_sol), metres.
+        avoid_probability: (m,) q_j(c, t) of eq. (prob_q).
+        quantile_distance: (m,) d̂_j of eq. (m_crv), metres (a lower bound where pruned).
+        theta: (m,) switching gains θ_j.
+    """
+
+    center_rate: np.ndarray
+    radius: float
+    avoid_probability: np.ndarray
+    quantile_distance: np.ndarray
+    theta: np.ndarray
+
+
+@dataclass(frozen=True)
+class TubeLaw:
+    """Centre and radius law of the STT (eqs. cen_dynamic, prob_q, m_crv, rad_sol).
+
+    Attributes:
+        target: (n,) η, the point the centre is pulled to.
+        k1: attraction gain (> 0).
+        k2: avoidance gain along m_j (> 0), scalar or one per obstacle.
+        k3: gain along v_j ⟂ m_j (≥ 0), scalar or one per obstacle.
+        r_min: buffer added to each obstacle radius in q_j (> 0).
+        r_max: largest tube radius (> r_min).
+        nu: soft-min sharpness; must exceed ln(n_o + 1)/r_min for claim (iii).
+    """
+
+    target: np.ndarray
+    k1: float
+    k2: np.ndarray | float
+    k3: np.ndarray | float
+    r_min: float
+    r_max: float
+    nu: float
+
+    def radius(self, quantile_distance: np.ndarray) -> float:
+        """Soft-min radius r = −(1/ν) ln(e^{−ν r_max} + Σ e^{−ν d̂_j}) (eq. rad_sol).
+
+        Shifted by the hard minimum before exponentiating, so nothing under/overflows.
+        """
+        values = np.append(quantile_distance, self.r_max)
+        smallest = np.min(values)
+        return float(smallest - np.log(np.sum(np.exp(-self.nu * (values - smallest)))) / self.nu)
+
+    def evaluate(self, center: np.ndarray, belief: ObstacleBelief) -> TubeEvaluation:
+        """Evaluate ċ, r and the diagnostics at the centre `center` (n,)."""
+        q = avoid_probability(center, belief.mean, belief.sigma, belief.radius + self.r_min)
+        d_hat = quantile_distance(
+            center,
+            belief.mean,
+            belief.sigma,
+            belief.radius,
+            belief.epsilon,
+            prune_above=self.r_max + PRUNE_HEADROOM_NU / self.nu,
+        )
+        active = q <= belief.p_d
+        theta = np.zeros_like(q)
+        theta[active] = 1.0 / q[active] - 1.0 / belief.p_d[active]
+        goal_direction = self.target - center
+        rate = signed_cube_root_attraction(goal_direction, self.k1)
+        if np.any(active):
+            # The centre must never reach q = ε; if a crossing ever happens the monitor
+            # reports it, and the floor keeps m pointing away from the obstacle meanwhile.
+            gap = np.maximum(q[active] - belief.epsilon[active], 1e-12)
+            m = (center - belief.mean[active]) / gap[:, None]
+            v = null_space_direction(m, goal_direction)
+            k2 = np.broadcast_to(self.k2, q.shape)[active]
+            k3 = np.broadcast_to(self.k3, q.shape)[active]
+            rate = rate + np.sum((k2[:, None] * m + k3[:, None] * v) * theta[active, None], axis=0)
+        return TubeEvaluation(
+            center_rate=rate,
+            radius=self.radius(d_hat),
+            avoid_probability=q,
+            quantile_distance=d_hat,
+            theta=theta,
+        )
