@@ -163,3 +163,52 @@ class TubeLaw:
             quantile_distance=d_hat,
             theta=theta,
         )
+
+    def advance(
+        self,
+        center: np.ndarray,
+        belief: ObstacleBelief,
+        duration: float,
+        max_substeps: int = 10_000,
+    ) -> tuple[np.ndarray, int]:
+        """Fixed-rate (real-time) update: move c over one period with the belief held.
+
+        Splitting: the attraction uses its exact flow (:func:`attraction_flow`, never
+        overshoots η); the avoidance term an explicit Euler step. A sub-step is accepted only
+        if every gap q_j − ε_j that was positive stays at least half of what it was
+        (a fraction-to-boundary rule), else it is halved; after an accepted sub-step the
+        next one may double. So no q_j can cross ε_j within a period, however thin the
+        barrier layer.
+
+        Returns:
+            the centre after `duration`, and the number of accepted sub-steps.
+
+        Raises:
+            RuntimeError: if `max_substeps` attempts cannot cover the period.
+        """
+        center = np.array(center, dtype=float)
+        remaining, step, accepted = duration, duration, 0
+        evaluation = self.evaluate(center, belief)
+        for _attempt in range(max_substeps):
+            if remaining <= 0.0:
+                return center, accepted
+            step = min(step, remaining)
+            attraction = signed_cube_root_attraction(self.target - center, self.k1)
+            avoidance = evaluation.center_rate - attraction
+            candidate = (
+                center + attraction_flow(self.target - center, self.k1, step) + step * avoidance
+            )
+            candidate_evaluation = self.evaluate(candidate, belief)
+            gap = evaluation.avoid_probability - belief.epsilon
+            new_gap = candidate_evaluation.avoid_probability - belief.epsilon
+            if np.all((gap <= 0.0) | (new_gap >= 0.5 * gap)):
+                center, evaluation = candidate, candidate_evaluation
+                remaining -= step
+                accepted += 1
+                step *= 2.0
+            else:
+                step *= 0.5
+        raise RuntimeError(
+            f"tube fixed-rate update: {max_substeps} sub-steps did not cover {duration} s "
+            f"(last step {step:.3g} s)"
+        )
