@@ -4,7 +4,6 @@ Pure numpy, no Drake. Each model is a dataclass that a scenario YAML names with 
 (``motion: !Oscillation {...}``) and that evaluates itself at a time t.
 """
 
-
 from dataclasses import dataclass, field
 from typing import Union
 

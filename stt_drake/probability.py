@@ -63,7 +63,10 @@ def noncentral_chi_sf(threshold: np.ndarray, offset: np.ndarray, dimension: int)
             2.0 * b * _normal_pdf(b),
         )
         return special.ndtr(a - b) + special.ndtr(-a - b) + shell
-    return _ncx2_sf(b * b, dimension, a * a)
+    # The bare Boost ufunc returns −0.0 at x = 0 when nc > 0 (scipy.stats.ncx2.sf handles
+    # that support boundary in its wrapper): P(‖Z‖² ≥ 0) = 1, also where b² underflows.
+    x = b * b
+    return np.where(x > 0.0, _ncx2_sf(x, dimension, a * a), 1.0)[()]
 
 
 def noncentral_chi_isf(probability: np.ndarray, offset: np.ndarray, dimension: int) -> np.ndarray:

@@ -5,7 +5,6 @@ here, because the loader checks neither array shapes nor the paper's rules. Ever
 violation raises :class:`ScenarioError` naming the full field path and the rule.
 """
 
-
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -163,15 +162,18 @@ class Scenario:
 
     def belief_at(self, t: float) -> ObstacleBelief:
         """The belief of every obstacle at time t."""
-        return ObstacleBelief(
-            mean=np.array([o.motion.position(t) for o in self.obstacles]).reshape(
-                len(self.obstacles), self.dimension
-            ),
-            sigma=np.array([obstacle_sigma(o, t) for o in self.obstacles]),
-            radius=np.array([o.radius for o in self.obstacles]),
-            epsilon=np.array([o.epsilon for o in self.obstacles]),
-            p_d=np.array([o.p_d for o in self.obstacles]),
-        )
+        return obstacle_belief(self.obstacles, self.dimension, t)
+
+
+def obstacle_belief(obstacles: list[Obstacle], dimension: int, t: float) -> ObstacleBelief:
+    """The belief of every obstacle in `obstacles` at time t."""
+    return ObstacleBelief(
+        mean=np.array([o.motion.position(t) for o in obstacles]).reshape(len(obstacles), dimension),
+        sigma=np.array([obstacle_sigma(o, t) for o in obstacles]),
+        radius=np.array([o.radius for o in obstacles]),
+        epsilon=np.array([o.epsilon for o in obstacles]),
+        p_d=np.array([o.p_d for o in obstacles]),
+    )
 
 
 def obstacle_sigma(obstacle: Obstacle, t: float) -> float:

@@ -1,0 +1,72 @@
+"""The `stt-drake` command: `run` a scenario (more subcommands join as they land)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+#: The scenario `stt-drake run` uses when none is given.
+DEFAULT_SCENARIO = Path("diagrams/omni_hardware_case1.yaml")
+
+EXIT_SUCCESS, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="stt-drake",
+        description="Spatiotemporal Tube control among uncertain moving obstacles (Drake).",
+    )
+    commands = parser.add_subparsers(dest="command", required=True)
+    run = commands.add_parser(
+        "run",
+        help="simulate one scenario and check every guarantee",
+        description="Exit code 0: every guarantee held and the target was reached; "
+        "1: a guarantee failed or the target was not reached; 2: bad input.",
+    )
+    run.add_argument(
+        "scenario",
+        nargs="?",
+        type=Path,
+        default=DEFAULT_SCENARIO,
+        help=f"scenario YAML (default: {DEFAULT_SCENARIO})",
+    )
+    run.add_argument(
+        "--out", type=Path, default=None, help="output folder (default: results/<scenario name>/)"
+    )
+    run.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
+    run.add_argument("--strict", action="store_true", help="stop at the first violated guarantee")
+    run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    return parser
+
+
+def _run(args: argparse.Namespace) -> int:
+    from stt_drake.run import simulate, summary, write_outputs
+    from stt_drake.scenario import ScenarioError, load_scenario
+
+    try:
+        scenario = load_scenario(args.scenario)
+    except ScenarioError as error:
+        print(f"stt-drake: bad scenario {args.scenario}: {error}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if args.seed is not None:
+        scenario.seed = args.seed
+    result = simulate(scenario, strict=True if args.strict else None)
+    out_dir = args.out if args.out is not None else Path("results") / scenario.name
+    written = write_outputs(result, out_dir, figures=not args.no_figures)
+    print(summary(result))
+    print(f"  wrote {', '.join(str(p) for p in written)}")
+    return EXIT_SUCCESS if result.success else EXIT_FAILURE
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the `stt-drake` console script."""
+    args = _parser().parse_args(argv)
+    if args.command == "run":
+        return _run(args)
+    raise AssertionError(f"unhandled command {args.command}")  # argparse rejects others
+
+
+if __name__ == "__main__":
+    sys.exit(main())

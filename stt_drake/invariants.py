@@ -1,0 +1,118 @@
+"""The guarantees every run checks (DESIGN.md, "Guarantees every run checks").
+
+Pure numpy. A *margin* is positive when a guarantee holds with room to spare:
+
+========================== ========================================================
+name                       margin
+========================== ========================================================
+output_in_tube             r − ‖y − c‖ (metres): y(t) ∈ Γ(t), Theorem 4.1
+center_avoid_probability   min_j q_j(c) − ε_j: the centre's buffered avoidance (claim ii, part 1)
+tube_avoid_probability     min_j P(‖c − O_j‖ ≥ r_o_j + r) − ε_j: Def. 3 (d) / claim (ii)
+output_avoid_probability   min_j P(‖y − O_j‖ ≥ r_o_j) − ε_j: the PrT-RAS task, Def. 2.2
+radius_positive            r (metres): claim (iii)
+========================== ========================================================
+
+The tube sits on its ε level set by design, so a margin may be 0 up to rounding; a
+guarantee *holds* when its worst margin is ≥ −HOLDS_TOLERANCE.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from stt_drake.belief import ObstacleBelief
+from stt_drake.probability import avoid_probability
+
+INVARIANT_NAMES = (
+    "output_in_tube",
+    "center_avoid_probability",
+    "tube_avoid_probability",
+    "output_avoid_probability",
+    "radius_positive",
+)
+
+#: A margin ≥ −HOLDS_TOLERANCE counts as holding (margins can sit at 0 up to rounding).
+HOLDS_TOLERANCE = 1e-9
+
+
+@dataclass(frozen=True)
+class InvariantSample:
+    """Margins at one instant, plus the per-obstacle probabilities behind them."""
+
+    margins: np.ndarray  # (5,) in INVARIANT_NAMES order
+    output_avoid_probability: np.ndarray  # (m,) P(‖y − O_j‖ ≥ r_o_j)
+    tube_avoid_probability: np.ndarray  # (m,) P(‖c − O_j‖ ≥ r_o_j + r)
+
+
+def evaluate_invariants(
+    output: np.ndarray, center: np.ndarray, radius: float, belief: ObstacleBelief, r_min: float
+) -> InvariantSample:
+    """Compute every margin at one instant, independently of the tube's own diagnostics."""
+    center_q = avoid_probability(center, belief.mean, belief.sigma, belief.radius + r_min)
+    tube_q = avoid_probability(center, belief.mean, belief.sigma, belief.radius + max(radius, 0.0))
+    output_q = avoid_probability(output, belief.mean, belief.sigma, belief.radius)
+    # With no obstacle a probability margin is vacuous; 1 exceeds every real one (1 − ε < 1).
+    margins = np.array(
+        [
+            radius - float(np.linalg.norm(np.asarray(output) - np.asarray(center))),
+            np.min(center_q - belief.epsilon, initial=1.0),
+            np.min(tube_q - belief.epsilon, initial=1.0),
+            np.min(output_q - belief.epsilon, initial=1.0),
+            radius,
+        ]
+    )
+    return InvariantSample(margins, output_q, tube_q)
+
+
+@dataclass
+class InvariantRecord:
+    """Worst margin of one guarantee over a run and when it occurred."""
+
+    worst_margin: float = np.inf
+    t_worst: float = 0.0
+
+    @property
+    def holds(self) -> bool:
+        return bool(self.worst_margin >= -HOLDS_TOLERANCE)
+
+    def as_dict(self) -> dict[str, float | bool]:
+        return {"holds": self.holds, "worst_margin": self.worst_margin, "t_worst": self.t_worst}
+
+
+class InvariantTracker:
+    """Keeps the worst margin of every guarantee over a run, and the first violation."""
+
+    def __init__(self) -> None:
+        self.records = {name: InvariantRecord() for name in INVARIANT_NAMES}
+        self.first_violation: str | None = None
+
+    def update(self, t: float, margins: np.ndarray) -> str | None:
+        """Fold in the margins at time t; return a violation message if one is new here."""
+        message = None
+        for name, margin in zip(INVARIANT_NAMES, margins, strict=True):
+            record = self.records[name]
+            margin = float(margin) if np.isfinite(margin) else -np.inf
+            if margin < record.worst_margin:
+                record.worst_margin, record.t_worst = margin, float(t)
+            if margin < -HOLDS_TOLERANCE and message is None:
+                message = (
+                    f"invariant {name} violated at t = {t:.6g} s: margin {margin:.6g} "
+                    f"(holds needs ≥ −{HOLDS_TOLERANCE:g})"
+                )
+        if message is not None and self.first_violation is None:
+            self.first_violation = message
+        return message
+
+    def update_many(self, times: np.ndarray, margins: np.ndarray) -> None:
+        """Fold in a logged series: times (T,), margins (T, 5)."""
+        for t, row in zip(times, margins, strict=True):
+            self.update(t, row)
+
+    @property
+    def holds(self) -> bool:
+        return all(record.holds for record in self.records.values())
+
+    def as_dict(self) -> dict[str, dict[str, float | bool]]:
+        return {name: record.as_dict() for name, record in self.records.items()}

@@ -1,0 +1,567 @@
+"""Matplotlib figures from a run log (pure numpy/matplotlib; no Drake).
+
+A *run log* is any mapping (a dict, or ``np.load("log.npz")``) with the keys
+
+========================== =============================================================
+key                        contents (T samples, m obstacles, n = dimension)
+========================== =============================================================
+t                          (T,) seconds
+output, center             (T, n) robot output y and tube centre c
+radius                     (T,) tube radius r
+belief                     (T, m·(n+4)) obstacle-major records [mean, σ, r_o, ε, p_d]
+avoid_probability          (T, m) q_j at the centre
+quantile_distance, theta   (T, m)
+control                    (T, n)
+margins                    (T, 5) in ``stt_drake.invariants.INVARIANT_NAMES`` order
+output_avoid_probability   (T, m) P(‖y − O_j‖ ≥ r_o_j)
+dimension, start, target,  scalars / (n,) arrays describing the task
+initial_set_radius,
+target_set_radius, r_min
+name                       str (a 0-d array in an npz)
+r_max                      optional: drawn as a reference in :func:`plot_margins`
+========================== =============================================================
+
+Every function returns a :class:`matplotlib.figure.Figure` built without pyplot, so it
+works headless (no backend is touched) and displays in notebooks as-is. All figures share
+one visual language, :data:`PALETTE`.
+
+The obstacle uncertainty is drawn as the sub-level sets of the point avoidance probability
+q̂_j(x) = P(‖x − O_j‖ ≥ r_o_j): {q̂_j ≤ p_d_j} (light, where the tube starts to react) and
+{q̂_j ≤ ε_j} (darker, what the robot's output must stay out of). q̂_j grows with the
+distance to the mean, so both sets are discs around the mean; their radii come from a 1-D
+root find (:func:`level_set_radius`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib import colormaps
+from matplotlib.cm import ScalarMappable
+from matplotlib.colors import Colormap, ListedColormap, Normalize
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Circle, Patch
+from mpl_toolkits.mplot3d.art3d import Line3DCollection
+from scipy.optimize import brentq
+
+from stt_drake.belief import ObstacleBelief
+from stt_drake.probability import noncentral_chi_sf
+
+#: The one visual language of every figure.
+PALETTE: dict[str, Any] = {
+    "tube": "#1f77b4",  # tube Γ(t) = B(c, r) and the centre path
+    "trajectory": "#111111",  # robot output y
+    "start": "#2ca02c",  # initial set S
+    "target": "#9467bd",  # target set T
+    "obstacle_cmap": "Reds",  # obstacles coloured by σ
+    "reference": "#7f7f7f",  # zero lines, r_min / r_max
+    "margin": "#1f77b4",  # margin curves
+    "violation": "#d62728",  # shading where a margin is negative
+}
+
+#: Fraction of the obstacle colormap used (the palest end is invisible on white).
+_CMAP_RANGE = (0.35, 0.95)
+#: Alpha of the {q̂ ≤ p_d} and {q̂ ≤ ε} discs.
+_LIGHT_ALPHA, _DARK_ALPHA = 0.14, 0.38
+#: Markers that tell obstacles apart in line plots when their σ colours coincide.
+_OBSTACLE_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">", "*")
+#: Panels of :func:`plot_margins` for margins columns 0..3: (column, title, y label).
+_MARGIN_PANELS = (
+    (0, "output in tube", r"$r - \Vert y - c\Vert$ (m)"),
+    (1, "centre avoidance", r"$\min_j\, q_j(c) - \varepsilon_j$"),
+    (2, "tube avoidance", r"$\min_j\, P(B(c,r) \cap O_j = \emptyset) - \varepsilon_j$"),
+    (3, "output avoidance", r"$\min_j\, \hat{q}_j(y) - \varepsilon_j$"),
+)
+
+
+@dataclass(frozen=True)
+class _Run:
+    """A run log decoded once (npz members are re-read from the zip on every access)."""
+
+    name: str
+    dimension: int
+    t: np.ndarray  # (T,)
+    output: np.ndarray  # (T, n)
+    center: np.ndarray  # (T, n)
+    radius: np.ndarray  # (T,)
+    mean: np.ndarray  # (T, m, n)
+    sigma: np.ndarray  # (T, m)
+    obstacle_radius: np.ndarray  # (T, m)
+    epsilon: np.ndarray  # (T, m)
+    p_d: np.ndarray  # (T, m)
+    margins: np.ndarray  # (T, 5)
+    output_avoid_probability: np.ndarray  # (T, m)
+    start: np.ndarray  # (n,)
+    initial_set_radius: float
+    target: np.ndarray  # (n,)
+    target_set_radius: float
+    r_min: float
+    r_max: float | None
+
+    @property
+    def count(self) -> int:
+        return self.sigma.shape[1]
+
+
+def _decode(log: Mapping[str, Any] | _Run) -> _Run:
+    if isinstance(log, _Run):
+        return log
+    dimension = int(np.asarray(log["dimension"]))
+    t = np.asarray(log["t"], dtype=float)
+    samples = t.shape[0]
+    belief_rows = np.asarray(log["belief"], dtype=float).reshape(samples, -1)
+    # One from_vector call on all rows: its (T·m, n+4) table, reshaped back to (T, m, ...).
+    belief = ObstacleBelief.from_vector(belief_rows.ravel(), dimension)
+    count = belief.count // samples if samples else 0
+    name = np.asarray(log["name"]).item() if "name" in log else ""
+    r_max = float(np.asarray(log["r_max"])) if "r_max" in log else None
+    return _Run(
+        name=str(name),
+        dimension=dimension,
+        t=t,
+        output=np.asarray(log["output"], dtype=float).reshape(samples, dimension),
+        center=np.asarray(log["center"], dtype=float).reshape(samples, dimension),
+        radius=np.asarray(log["radius"], dtype=float).reshape(samples),
+        mean=belief.mean.reshape(samples, count, dimension),
+        sigma=belief.sigma.reshape(samples, count),
+        obstacle_radius=belief.radius.reshape(samples, count),
+        epsilon=belief.epsilon.reshape(samples, count),
+        p_d=belief.p_d.reshape(samples, count),
+        margins=np.asarray(log["margins"], dtype=float).reshape(samples, -1),
+        output_avoid_probability=np.asarray(log["output_avoid_probability"], dtype=float).reshape(
+            samples, count
+        ),
+        start=np.asarray(log["start"], dtype=float).reshape(dimension),
+        initial_set_radius=float(np.asarray(log["initial_set_radius"])),
+        target=np.asarray(log["target"], dtype=float).reshape(dimension),
+        target_set_radius=float(np.asarray(log["target_set_radius"])),
+        r_min=float(np.asarray(log["r_min"])),
+        r_max=r_max,
+    )
+
+
+def level_set_radius(level: float, sigma: float, radius: float, dimension: int) -> float:
+    """Distance d from the mean at which q̂(x) = P(‖x − O‖ ≥ radius) equals `level`.
+
+    q̂ depends on x only through d = ‖x − mean‖ and grows with it, so {q̂ ≤ level} is the
+    closed disc (ball) of radius d around the mean.
+
+    Args:
+        level: probability in (0, 1].
+        sigma: standard deviation of the obstacle centre per axis (> 0), metres.
+        radius: obstacle radius r_o (≥ 0), metres.
+        dimension: n.
+
+    Returns:
+        d in metres: 0 if even the mean has q̂ ≥ level (the set is empty or a point);
+        ``inf`` if q̂ < level everywhere (the set is the whole space).
+    """
+    threshold = radius / sigma
+
+    def gap(offset: float) -> float:
+        return float(noncentral_chi_sf(threshold, offset, dimension)) - level
+
+    if gap(0.0) >= 0.0:
+        return 0.0
+    upper = threshold + np.sqrt(dimension) + 10.0
+    for _ in range(60):
+        if gap(upper) >= 0.0:
+            break
+        upper *= 2.0
+    else:
+        return float("inf")
+    return sigma * brentq(gap, 0.0, upper, xtol=1e-13, rtol=8.0 * np.finfo(float).eps)
+
+
+def _obstacle_colors(run: _Run) -> tuple[Normalize, Colormap]:
+    """The σ → colour map shared by every figure of a run."""
+    base = colormaps[PALETTE["obstacle_cmap"]]
+    cmap = ListedColormap(base(np.linspace(*_CMAP_RANGE, 256)), name="obstacle_sigma")
+    if run.count == 0:
+        return Normalize(0.0, 1.0), cmap
+    low, high = float(np.min(run.sigma)), float(np.max(run.sigma))
+    if high - low < 1e-12 * max(abs(high), 1.0):
+        low, high = low * 0.5, high * 1.5 if high > 0 else 1.0
+    return Normalize(low, high), cmap
+
+
+def _sigma_colorbar(
+    fig: Figure, run: _Run, axes: Any, shrink: float = 0.8, pad: float = 0.02
+) -> None:
+    norm, cmap = _obstacle_colors(run)
+    bar = fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=axes, shrink=shrink, pad=pad)
+    bar.set_label("σ (m)")
+
+
+def reach_time(log: Mapping[str, Any]) -> float | None:
+    """First logged time after which the tube stays inside the target set, else None.
+
+    The tube B(c, r) is inside the target ball when ‖c − target‖ + r ≤ target radius.
+    """
+    run = _decode(log)
+    inside = np.linalg.norm(run.center - run.target, axis=1) + run.radius <= run.target_set_radius
+    if inside.size == 0 or not inside[-1]:
+        return None
+    outside = np.flatnonzero(~inside)
+    first = 0 if outside.size == 0 else outside[-1] + 1
+    return float(run.t[first])
+
+
+def _default_times(run: _Run) -> list[float]:
+    t_reach = reach_time(run)
+    t0, t_end = float(run.t[0]), float(run.t[-1])
+    middle = 0.5 * (t0 + t_reach) if t_reach is not None and t_reach > t0 else 0.5 * (t0 + t_end)
+    return [t0, middle, t_end]
+
+
+def _nearest_index(t: np.ndarray, time: float) -> int:
+    return int(np.argmin(np.abs(t - time)))
+
+
+def _snapshot_limits(run: _Run, indices: Sequence[int], extents: np.ndarray) -> np.ndarray:
+    """[[x_lo, x_hi], [y_lo, y_hi]] covering everything drawn in any snapshot, with a pad."""
+    points = [run.output[:, :2], run.center[:, :2]]
+    lows = [
+        run.center[:, :2] - run.radius[:, None],
+        run.start[None, :2] - run.initial_set_radius,
+        run.target[None, :2] - run.target_set_radius,
+    ]
+    highs = [
+        run.center[:, :2] + run.radius[:, None],
+        run.start[None, :2] + run.initial_set_radius,
+        run.target[None, :2] + run.target_set_radius,
+    ]
+    for k, index in enumerate(indices):
+        mean = run.mean[index, :, :2]
+        reach = extents[k][:, None]
+        lows.append(mean - reach)
+        highs.append(mean + reach)
+    low = np.min(np.vstack([*points, *lows]), axis=0)
+    high = np.max(np.vstack([*points, *highs]), axis=0)
+    pad = 0.05 * np.max(high - low) + 1e-9
+    return np.column_stack([low - pad, high + pad])
+
+
+def _obstacle_discs(run: _Run, index: int) -> np.ndarray:
+    """(m, 2) radii of {q̂ ≤ p_d} and {q̂ ≤ ε} for every obstacle at sample `index`."""
+    return np.array(
+        [
+            [
+                level_set_radius(
+                    float(level),
+                    float(run.sigma[index, j]),
+                    float(run.obstacle_radius[index, j]),
+                    run.dimension,
+                )
+                for level in (run.p_d[index, j], run.epsilon[index, j])
+            ]
+            for j in range(run.count)
+        ]
+    ).reshape(run.count, 2)
+
+
+def plot_snapshots(log: Mapping[str, Any], times: Sequence[float] | None = None) -> Figure:
+    """Top view of a 2D run at a few instants, one panel per instant.
+
+    Each panel shows, for every obstacle, the discs {q̂_j ≤ p_d_j} (light) and
+    {q̂_j ≤ ε_j} (darker) of the point avoidance probability q̂_j(x) = P(‖x − O_j‖ ≥ r_o_j),
+    the nominal disc B(mean_j, r_o_j) (outline) and the mean's path so far (dotted), all
+    coloured by σ_j; the tube Γ(t) = B(c, r); the output path and the centre path so far;
+    the start and target sets. Panels share limits and use equal aspect.
+
+    Args:
+        log: a run log (see the module docstring) with dimension 2.
+        times: instants in seconds (each snapped to the nearest sample). Default: the
+            start, the middle of the reach (halfway to the reach time, or to the end if the
+            tube never settles in the target set) and the end.
+
+    Returns:
+        The figure: one axes per instant plus a σ colourbar (when there are obstacles).
+    """
+    run = _decode(log)
+    if run.dimension != 2:
+        raise ValueError(f"plot_snapshots draws 2D runs; this run has dimension {run.dimension}")
+    indices = [_nearest_index(run.t, time) for time in (times or _default_times(run))]
+    discs = [_obstacle_discs(run, index) for index in indices]
+    # Limits cover the ε discs; the wider p_d discs may run off the panel.
+    extents = [
+        np.maximum(np.where(np.isfinite(d[:, 1]), d[:, 1], 0.0), run.obstacle_radius[i])
+        for d, i in zip(discs, indices, strict=True)
+    ]
+    limits = _snapshot_limits(run, indices, np.array(extents).reshape(len(indices), run.count))
+    norm, cmap = _obstacle_colors(run)
+
+    panels = len(indices)
+    fig = Figure(figsize=(4.2 * panels + 1.2, 4.8), layout="constrained")
+    axes = fig.subplots(1, panels, sharex=True, sharey=True, squeeze=False)[0]
+    for ax, index, disc in zip(axes, indices, discs, strict=True):
+        for j in range(run.count):
+            color = cmap(norm(run.sigma[index, j]))
+            center = run.mean[index, j]
+            light, dark = disc[j]
+            if np.isfinite(light):
+                ax.add_patch(Circle(center, light, fc=color, alpha=_LIGHT_ALPHA, lw=0, zorder=1))
+            if np.isfinite(dark):
+                ax.add_patch(Circle(center, dark, fc=color, alpha=_DARK_ALPHA, lw=0, zorder=1))
+            ax.add_patch(
+                Circle(center, run.obstacle_radius[index, j], fc="none", ec=color, lw=1.4, zorder=3)
+            )
+            ax.plot(*run.mean[: index + 1, j].T, ls=":", lw=0.9, color=color, zorder=2)
+            ax.annotate(
+                str(j + 1), center, ha="center", va="center", fontsize=7, color=color, zorder=3
+            )
+        ax.add_patch(
+            Circle(run.start, run.initial_set_radius, fc="none", ec=PALETTE["start"], lw=1.3)
+        )
+        ax.add_patch(
+            Circle(run.target, run.target_set_radius, fc="none", ec=PALETTE["target"], lw=1.3)
+        )
+        ax.add_patch(
+            Circle(
+                run.center[index],
+                max(run.radius[index], 0.0),
+                fc=PALETTE["tube"],
+                ec=PALETTE["tube"],
+                alpha=0.3,
+                lw=1.2,
+                zorder=4,
+            )
+        )
+        ax.plot(*run.center[: index + 1].T, ls="--", lw=0.8, color=PALETTE["tube"], zorder=4)
+        ax.plot(*run.output[: index + 1].T, lw=1.4, color=PALETTE["trajectory"], zorder=5)
+        ax.plot(*run.output[index], "o", ms=3.5, color=PALETTE["trajectory"], zorder=6)
+        ax.set_xlim(limits[0])
+        ax.set_ylim(limits[1])
+        ax.set_aspect("equal", adjustable="box")
+        ax.set_title(f"t = {run.t[index]:.1f} s")
+        ax.set_xlabel("x (m)")
+        ax.grid(alpha=0.25, lw=0.5)
+    axes[0].set_ylabel("y (m)")
+
+    sample = cmap(0.6)
+    handles = [
+        Line2D([], [], color=PALETTE["trajectory"], lw=1.4, label="output y"),
+        Line2D([], [], color=PALETTE["tube"], ls="--", lw=0.8, label="tube centre c"),
+        Patch(
+            fc=PALETTE["tube"], ec=PALETTE["tube"], alpha=0.3, label=r"tube $\Gamma(t) = B(c, r)$"
+        ),
+        Patch(fc="none", ec=PALETTE["start"], label="start set"),
+        Patch(fc="none", ec=PALETTE["target"], label="target set"),
+        Patch(fc="none", ec=sample, lw=1.4, label=r"obstacle $B(\mu_j, r_{o,j})$"),
+        Patch(fc=sample, alpha=_DARK_ALPHA, label=r"$\hat{q}_j \leq \varepsilon_j$"),
+        Patch(fc=sample, alpha=_LIGHT_ALPHA, label=r"$\hat{q}_j \leq p_{d,j}$"),
+    ]
+    fig.legend(handles=handles, loc="outside lower center", ncol=4, fontsize=8, frameon=False)
+    if run.count:
+        _sigma_colorbar(fig, run, axes.tolist())
+    if run.name:
+        fig.suptitle(run.name)
+    return fig
+
+
+def plot_tube_3d(log: Mapping[str, Any], circles: int = 60) -> Figure:
+    """The tube in (x, y, t): stacked tube circles, the output path and obstacle mean paths.
+
+    Obstacle mean paths are coloured by σ_j; thin rings show the boundary of
+    {q̂_j ≤ ε_j} at every 4th tube-circle time.
+
+    Args:
+        log: a run log (see the module docstring) with dimension 2.
+        circles: about how many tube circles to draw, evenly spread over the samples.
+
+    Returns:
+        The figure: one 3D axes plus a σ colourbar (when there are obstacles).
+    """
+    run = _decode(log)
+    if run.dimension != 2:
+        raise ValueError(f"plot_tube_3d draws 2D runs; this run has dimension {run.dimension}")
+    norm, cmap = _obstacle_colors(run)
+    fig = Figure(figsize=(7.5, 6.5), layout="constrained")
+    ax = fig.add_subplot(projection="3d")
+
+    angle = np.linspace(0.0, 2.0 * np.pi, 73)
+    ring = np.column_stack([np.cos(angle), np.sin(angle)])
+    picks = np.unique(np.linspace(0, run.t.size - 1, min(circles, run.t.size)).round().astype(int))
+    tube_rings = [
+        np.column_stack(
+            [run.center[i] + max(run.radius[i], 0.0) * ring, np.full(angle.size, run.t[i])]
+        )
+        for i in picks
+    ]
+    ax.add_collection3d(Line3DCollection(tube_rings, colors=PALETTE["tube"], lw=0.7, alpha=0.55))
+    for center, set_radius, time, key in (
+        (run.start, run.initial_set_radius, run.t[0], "start"),
+        (run.target, run.target_set_radius, run.t[-1], "target"),
+    ):
+        ax.plot(*(center + set_radius * ring).T, np.full(angle.size, time), color=PALETTE[key])
+    ax.plot(*run.output.T, run.t, color=PALETTE["trajectory"], lw=1.5)
+    for j in range(run.count):
+        path = np.column_stack([run.mean[:, j], run.t])
+        segments = np.stack([path[:-1], path[1:]], axis=1)
+        sigma_mid = 0.5 * (run.sigma[:-1, j] + run.sigma[1:, j])
+        ax.add_collection3d(Line3DCollection(segments, colors=cmap(norm(sigma_mid)), lw=2.0))
+    # The {q̂_j ≤ ε_j} discs as rings at every 4th tube time: the clearance the output needs.
+    obstacle_rings, ring_colors = [], []
+    for i in picks[::4]:
+        for j, disc in enumerate(_obstacle_discs(run, i)[:, 1]):
+            if np.isfinite(disc) and disc > 0.0:
+                obstacle_rings.append(
+                    np.column_stack([run.mean[i, j] + disc * ring, np.full(angle.size, run.t[i])])
+                )
+                ring_colors.append(cmap(norm(run.sigma[i, j])))
+    if obstacle_rings:
+        ax.add_collection3d(Line3DCollection(obstacle_rings, colors=ring_colors, lw=0.6, alpha=0.6))
+
+    points = [run.output, run.center - run.radius.max(initial=0.0), run.center + run.radius.max()]
+    points += [run.start - run.initial_set_radius, run.start + run.initial_set_radius]
+    points += [run.target - run.target_set_radius, run.target + run.target_set_radius]
+    if run.count:
+        points.append(run.mean.reshape(-1, 2))
+    everything = np.vstack(points)
+    ax.set_xlim(everything[:, 0].min(), everything[:, 0].max())
+    ax.set_ylim(everything[:, 1].min(), everything[:, 1].max())
+    ax.set_zlim(run.t[0], run.t[-1])
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("t (s)")
+    ax.view_init(elev=22, azim=-60)
+    handles = [
+        Line2D([], [], color=PALETTE["tube"], lw=0.9, label=r"tube $\Gamma(t)$"),
+        Line2D([], [], color=PALETTE["trajectory"], lw=1.5, label="output y"),
+        Line2D([], [], color=cmap(0.6), lw=2.0, label=r"obstacle mean $\mu_j$"),
+        Line2D([], [], color=cmap(0.6), lw=0.6, label=r"$\hat{q}_j = \varepsilon_j$ ring"),
+        Line2D([], [], color=PALETTE["start"], label="start set (t = 0)"),
+        Line2D([], [], color=PALETTE["target"], label="target set (t end)"),
+    ]
+    ax.legend(handles=handles, loc="upper left", fontsize=8)
+    if run.count:
+        _sigma_colorbar(fig, run, ax, shrink=0.6, pad=0.08)
+    if run.name:
+        ax.set_title(run.name)
+    return fig
+
+
+def _plot_margin(ax: Any, t: np.ndarray, margin: np.ndarray) -> None:
+    """A margin curve with its zero line, negative stretches shaded, and its minimum marked."""
+    finite = np.isfinite(margin)
+    ax.axhline(0.0, color=PALETTE["reference"], lw=0.8)
+    ax.plot(t[finite], margin[finite], color=PALETTE["margin"], lw=1.3)
+    if not np.any(finite):
+        return
+    ax.fill_between(
+        t,
+        0.0,
+        np.where(finite, margin, 0.0),
+        where=finite & (margin < 0.0),
+        interpolate=True,
+        color=PALETTE["violation"],
+        alpha=0.3,
+        lw=0,
+    )
+    worst = int(np.argmin(np.where(finite, margin, np.inf)))
+    ax.plot(t[worst], margin[worst], "o", ms=4, color=PALETTE["violation"])
+    ax.text(
+        0.98,
+        0.05,
+        f"min {margin[worst]:.3g} at t = {t[worst]:.1f} s",
+        transform=ax.transAxes,
+        ha="right",
+        va="bottom",
+        fontsize=7,
+        bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "none", "alpha": 0.8},
+    )
+
+
+def plot_margins(log: Mapping[str, Any]) -> Figure:
+    """The radius and every guarantee's margin over time (works for any dimension).
+
+    Panels: r(t) with r_min (and r_max when the log has it) — the radius_positive margin;
+    output in tube (metres); the centre, tube and output avoidance probability margins;
+    and each obstacle's output avoidance probability q̂_j(y) (solid) against its ε_j
+    (dashed, same colour). A margin below zero is a violated guarantee (shaded red).
+
+    Returns:
+        The figure: six axes in a 3 × 2 grid sharing the time axis.
+    """
+    run = _decode(log)
+    norm, cmap = _obstacle_colors(run)
+    fig = Figure(figsize=(10.5, 8.0), layout="constrained")
+    axes = fig.subplots(3, 2, sharex=True)
+    flat = axes.ravel()
+
+    ax = flat[0]
+    ax.plot(run.t, run.radius, color=PALETTE["tube"], lw=1.4, label="r")
+    ax.axhline(0.0, color=PALETTE["reference"], lw=0.8)
+    ax.axhline(run.r_min, color=PALETTE["reference"], ls="--", lw=0.9, label="r_min")
+    if run.r_max is not None:
+        ax.axhline(run.r_max, color=PALETTE["reference"], ls=":", lw=0.9, label="r_max")
+    ax.set_title("tube radius (radius positive)", fontsize=10)
+    ax.set_ylabel("r (m)")
+    ax.legend(fontsize=7, loc="best")
+
+    for ax, (column, title, label) in zip(flat[1:5], _MARGIN_PANELS, strict=True):
+        _plot_margin(ax, run.t, run.margins[:, column])
+        ax.set_title(title, fontsize=10)
+        ax.set_ylabel(label, fontsize=9)
+
+    ax = flat[5]
+    for j in range(run.count):
+        sigma_bar = float(np.mean(run.sigma[:, j]))
+        color = cmap(norm(sigma_bar))
+        marker = _OBSTACLE_MARKERS[j % len(_OBSTACLE_MARKERS)]
+        ax.plot(
+            run.t,
+            run.output_avoid_probability[:, j],
+            color=color,
+            lw=1.3,
+            marker=marker,
+            ms=4,
+            markevery=max(run.t.size // 8, 1),
+            label=rf"$\hat{{q}}_{{{j + 1}}}(y)$, $\bar{{\sigma}}$ = {sigma_bar:.2g} m",
+        )
+        ax.plot(run.t, run.epsilon[:, j], color=color, ls="--", lw=1.0)
+    if run.count:
+        ax.plot(
+            [], [], color=PALETTE["reference"], ls="--", lw=1.0, label=r"$\varepsilon_j$ (dashed)"
+        )
+        low = min(float(np.min(run.epsilon)), float(np.min(run.output_avoid_probability)))
+        ax.set_ylim(max(low - 0.05 * (1.0 - low) - 1e-3, 0.0), 1.0 + 0.02 * (1.0 - low) + 1e-3)
+        ax.legend(fontsize=7, loc="lower right")
+    ax.set_title("output avoidance per obstacle", fontsize=10)
+    ax.set_ylabel(r"$\hat{q}_j(y) = P(\Vert y - O_j\Vert \geq r_{o,j})$", fontsize=9)
+
+    for ax in flat:
+        ax.grid(alpha=0.25, lw=0.5)
+    for ax in axes[-1]:
+        ax.set_xlabel("t (s)")
+    fig.suptitle(f"{run.name} — guarantee margins" if run.name else "guarantee margins")
+    return fig
+
+
+def save_run_figures(log: Mapping[str, Any], out_dir: str | Path, dpi: int = 120) -> list[Path]:
+    """Write the run's figures as PNGs into `out_dir` (created if needed).
+
+    2D runs: ``snapshots.png``, ``tube_3d.png`` and ``margins.png``; other dimensions:
+    ``margins.png`` only.
+
+    Returns:
+        The paths written, in that order.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    run = _decode(log)  # once: an npz re-reads every member from its zip on each access
+    builders: list[tuple[str, Any]] = []
+    if run.dimension == 2:
+        builders += [("snapshots.png", plot_snapshots), ("tube_3d.png", plot_tube_3d)]
+    builders.append(("margins.png", plot_margins))
+    written = []
+    for filename, build in builders:
+        path = out / filename
+        build(run).savefig(path, dpi=dpi)
+        written.append(path)
+    return written

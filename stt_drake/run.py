@@ -1,0 +1,189 @@
+"""Simulate a scenario, check every guarantee, and write metrics, logs and figures."""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
+
+from stt_drake.builders import SttDiagram, build_diagram
+from stt_drake.invariants import HOLDS_TOLERANCE, InvariantTracker
+from stt_drake.scenario import Scenario
+
+
+@dataclass
+class RunResult:
+    """A finished run: the metrics (the `metrics.json` contract) and the logs."""
+
+    metrics: dict[str, Any]
+    log: dict[str, np.ndarray]
+
+    @property
+    def success(self) -> bool:
+        """Every guarantee held and the target was reached (exit code 0)."""
+        return bool(self.metrics["holds"] and self.metrics["reached"])
+
+
+def collect_log(built: SttDiagram, scenario: Scenario, root_context: object) -> dict[str, Any]:
+    """Read every logger into one dict of arrays (the `log.npz` layout, samples first)."""
+    logs = {name: sink.FindLog(root_context) for name, sink in built.loggers.items()}
+    n, m = scenario.dimension, len(scenario.obstacles)
+    tube = logs["tube"].data().T
+    diagnostics = logs["diagnostics"].data().T.reshape(-1, 3, m)
+    return {
+        "name": np.array(scenario.name),
+        "t": logs["tube"].sample_times().copy(),
+        "output": logs["output"].data().T.copy(),
+        "center": tube[:, :n].copy(),
+        "radius": tube[:, n].copy(),
+        "belief": logs["belief"].data().T.copy(),
+        "avoid_probability": diagnostics[:, 0, :].copy(),
+        "quantile_distance": diagnostics[:, 1, :].copy(),
+        "theta": diagnostics[:, 2, :].copy(),
+        "control": logs["control"].data().T.copy(),
+        "margins": logs["margins"].data().T.copy(),
+        "output_avoid_probability": logs["output_avoid_probability"].data().T.copy(),
+        "tube_avoid_probability": logs["tube_avoid_probability"].data().T.copy(),
+        "dimension": np.array(n),
+        "start": np.asarray(scenario.start, dtype=float),
+        "initial_set_radius": np.array(scenario.initial_set_radius),
+        "target": np.asarray(scenario.target, dtype=float),
+        "target_set_radius": np.array(scenario.target_set_radius),
+        "r_min": np.array(scenario.tube.r_min),
+        "r_max": np.array(scenario.tube.r_max),
+    }
+
+
+def reach_time(log: dict[str, np.ndarray]) -> float | None:
+    """t_c: the first logged time from which Γ(t) ⊂ T holds until the end, or None.
+
+    Γ(t) = B(c, r) lies in T = B(η, R_T) iff ‖c − η‖ + r ≤ R_T (up to HOLDS_TOLERANCE).
+    """
+    distance = np.linalg.norm(log["center"] - log["target"], axis=1) + log["radius"]
+    inside = distance <= log["target_set_radius"] + HOLDS_TOLERANCE
+    if not inside.size or not inside[-1]:
+        return None
+    outside = np.flatnonzero(~inside)
+    first = 0 if outside.size == 0 else outside[-1] + 1
+    return float(log["t"][first])
+
+
+def obstacle_report(log: dict[str, np.ndarray], scenario: Scenario) -> list[dict[str, Any]]:
+    """Per obstacle: the closest approach of y to its mean, and its σ and ε."""
+    n = scenario.dimension
+    record = n + 4
+    means = log["belief"].reshape(len(log["t"]), -1, record)[:, :, :n]
+    distance = np.linalg.norm(log["output"][:, None, :] - means, axis=2)
+    report = []
+    for j, obstacle in enumerate(scenario.obstacles):
+        k = int(np.argmin(distance[:, j]))
+        report.append(
+            {
+                "index": j,
+                "min_distance_to_mean": float(distance[k, j]),
+                "t_min_distance": float(log["t"][k]),
+                "sigma": float(log["belief"][k, j * record + n]),
+                "radius": obstacle.radius,
+                "epsilon": obstacle.epsilon,
+                "min_output_avoid_probability": float(
+                    np.min(log["output_avoid_probability"][:, j])
+                ),
+            }
+        )
+    return report
+
+
+def simulate(scenario: Scenario, strict: bool | None = None) -> RunResult:
+    """Build, simulate for `scenario.duration` and check every guarantee.
+
+    The guarantees are evaluated at every integrator step (Simulator monitor) and at every
+    logged sample; `strict` (default: the scenario's) stops at the first violation.
+    """
+    strict = scenario.strict if strict is None else strict
+    built = build_diagram(scenario)
+    simulator = Simulator(built.diagram)
+    ApplySimulatorConfig(scenario.simulator, simulator)
+    tracker = InvariantTracker()
+    built.monitor.attach(simulator, tracker, strict)
+    stopped = None
+    start = time.perf_counter()
+    simulator.Initialize()
+    try:
+        simulator.AdvanceTo(scenario.duration)
+    except RuntimeError as error:
+        if tracker.first_violation is None or tracker.first_violation not in str(error):
+            raise
+        stopped = tracker.first_violation
+    wall_time = time.perf_counter() - start
+    context = simulator.get_context()
+    sim_time = context.get_time()
+    log = collect_log(built, scenario, context)
+    tracker.update_many(log["t"], log["margins"])
+    t_reach = reach_time(log)
+    metrics = {
+        "scenario": scenario.name,
+        "reached": t_reach is not None and stopped is None,
+        "t_reach": t_reach,
+        "holds": tracker.holds,
+        "sim_time_s": sim_time,
+        "wall_time_s": wall_time,
+        "realtime_factor": sim_time / wall_time if wall_time > 0 else None,
+        "steps": simulator.get_num_steps_taken(),
+        "holds_tolerance": HOLDS_TOLERANCE,
+        "strict_stop": stopped,
+        "first_violation": tracker.first_violation,
+        "invariants": tracker.as_dict(),
+        "obstacles": obstacle_report(log, scenario),
+    }
+    return RunResult(metrics, log)
+
+
+def write_outputs(result: RunResult, out_dir: Path, figures: bool = True) -> list[Path]:
+    """Write metrics.json, log.npz and (optionally) the PNG figures into `out_dir`."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    metrics_path = out_dir / "metrics.json"
+    metrics_path.write_text(json.dumps(result.metrics, indent=2) + "\n")
+    log_path = out_dir / "log.npz"
+    np.savez_compressed(log_path, **result.log)
+    written = [metrics_path, log_path]
+    if figures:
+        from stt_drake.plotting import save_run_figures
+
+        written += save_run_figures(result.log, out_dir)
+    return written
+
+
+def summary(result: RunResult) -> str:
+    """A short human-readable summary of a run."""
+    m = result.metrics
+    lines = [f"scenario {m['scenario']}"]
+    if m["reached"]:
+        lines.append(f"  reached the target set: yes, t_c = {m['t_reach']:.2f} s")
+    else:
+        lines.append("  reached the target set: NO")
+    lines.append(f"  guarantees (worst margin, at time; holds if ≥ −{m['holds_tolerance']:g}):")
+    for name, record in m["invariants"].items():
+        verdict = "holds" if record["holds"] else "VIOLATED"
+        lines.append(
+            f"    {name:<26} {verdict:<8} {record['worst_margin']:+.3e} at t = "
+            f"{record['t_worst']:.2f} s"
+        )
+    if m["strict_stop"]:
+        lines.append(f"  stopped (strict): {m['strict_stop']}")
+    lines.append(
+        f"  simulated {m['sim_time_s']:.1f} s in {m['wall_time_s']:.2f} s wall "
+        f"(real-time factor {m['realtime_factor']:.1f}×, {m['steps']} steps)"
+    )
+    lines.append("  closest approach to each obstacle mean (distance, σ, ε):")
+    for o in m["obstacles"]:
+        lines.append(
+            f"    #{o['index']:<3} {o['min_distance_to_mean']:.3f} m  σ = {o['sigma']:.3f} m  "
+            f"ε = {o['epsilon']:.3f}"
+        )
+    lines.append("  result: " + ("SUCCESS" if result.success else "FAILURE"))
+    return "\n".join(lines)

@@ -1,0 +1,28 @@
+"""STTController: the closed-form funnel law of Sec. 5 as a stateless Drake system."""
+
+from __future__ import annotations
+
+from pydrake.systems.framework import BasicVector, Context, LeafSystem
+
+from stt_drake.control import FunnelController
+
+
+class STTController(LeafSystem):
+    """Inputs `tube` = [c, r] and `plant_state` = [x_1; ...; x_N] (measured stage states);
+    output `control` = u (n). Direct feedthrough, no state, no plant parameter."""
+
+    def __init__(self, controller: FunnelController, dimension: int) -> None:
+        super().__init__()
+        self.set_name("stt_controller")
+        self._controller = controller
+        self._dimension = dimension
+        self._tube_port = self.DeclareVectorInputPort("tube", dimension + 1)
+        self._state_port = self.DeclareVectorInputPort("plant_state", controller.stages * dimension)
+        self.DeclareVectorOutputPort("control", dimension, self._calc_control)
+
+    def _calc_control(self, context: Context, output: BasicVector) -> None:
+        tube = self._tube_port.Eval(context)
+        evaluation = self._controller.evaluate(
+            context.get_time(), self._state_port.Eval(context), tube[:-1], float(tube[-1])
+        )
+        output.SetFromVector(evaluation.control)
