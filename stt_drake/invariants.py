@@ -116,3 +116,22 @@ class InvariantTracker:
 
     def as_dict(self) -> dict[str, dict[str, float | bool]]:
         return {name: record.as_dict() for name, record in self.records.items()}
+
+
+def tube_reach_time(
+    t: np.ndarray,
+    center: np.ndarray,
+    radius: np.ndarray,
+    target: np.ndarray,
+    target_set_radius: float,
+) -> float | None:
+    """t_c of guarantee 4: the first sample time from which Γ(t) ⊂ T holds to the end.
+
+    Γ(t) = B(c, r) lies in T = B(η, R_T) iff ‖c − η‖ + r ≤ R_T (up to HOLDS_TOLERANCE).
+    None if it does not hold at the last sample.
+    """
+    inside = np.linalg.norm(center - target, axis=1) + radius <= target_set_radius + HOLDS_TOLERANCE
+    if not inside.size or not inside[-1]:
+        return None
+    outside = np.flatnonzero(~inside)
+    return float(t[0 if outside.size == 0 else outside[-1] + 1])

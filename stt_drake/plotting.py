@@ -50,6 +50,7 @@ from mpl_toolkits.mplot3d.art3d import Line3DCollection
 from scipy.optimize import brentq
 
 from stt_drake.belief import ObstacleBelief
+from stt_drake.invariants import tube_reach_time
 from stt_drake.probability import noncentral_chi_sf
 
 #: The one visual language of every figure.
@@ -204,12 +205,7 @@ def reach_time(log: Mapping[str, Any]) -> float | None:
     The tube B(c, r) is inside the target ball when ‖c − target‖ + r ≤ target radius.
     """
     run = _decode(log)
-    inside = np.linalg.norm(run.center - run.target, axis=1) + run.radius <= run.target_set_radius
-    if inside.size == 0 or not inside[-1]:
-        return None
-    outside = np.flatnonzero(~inside)
-    first = 0 if outside.size == 0 else outside[-1] + 1
-    return float(run.t[first])
+    return tube_reach_time(run.t, run.center, run.radius, run.target, run.target_set_radius)
 
 
 def _default_times(run: _Run) -> list[float]:

@@ -12,7 +12,7 @@ import numpy as np
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 
 from stt_drake.builders import SttDiagram, build_diagram
-from stt_drake.invariants import HOLDS_TOLERANCE, InvariantTracker
+from stt_drake.invariants import HOLDS_TOLERANCE, InvariantTracker, tube_reach_time
 from stt_drake.scenario import Scenario
 
 
@@ -57,20 +57,6 @@ def collect_log(built: SttDiagram, scenario: Scenario, root_context: object) -> 
         "r_min": np.array(scenario.tube.r_min),
         "r_max": np.array(scenario.tube.r_max),
     }
-
-
-def reach_time(log: dict[str, np.ndarray]) -> float | None:
-    """t_c: the first logged time from which Γ(t) ⊂ T holds until the end, or None.
-
-    Γ(t) = B(c, r) lies in T = B(η, R_T) iff ‖c − η‖ + r ≤ R_T (up to HOLDS_TOLERANCE).
-    """
-    distance = np.linalg.norm(log["center"] - log["target"], axis=1) + log["radius"]
-    inside = distance <= log["target_set_radius"] + HOLDS_TOLERANCE
-    if not inside.size or not inside[-1]:
-        return None
-    outside = np.flatnonzero(~inside)
-    first = 0 if outside.size == 0 else outside[-1] + 1
-    return float(log["t"][first])
 
 
 def obstacle_report(log: dict[str, np.ndarray], scenario: Scenario) -> list[dict[str, Any]]:
@@ -124,7 +110,9 @@ def simulate(scenario: Scenario, strict: bool | None = None) -> RunResult:
     sim_time = context.get_time()
     log = collect_log(built, scenario, context)
     tracker.update_many(log["t"], log["margins"])
-    t_reach = reach_time(log)
+    t_reach = tube_reach_time(
+        log["t"], log["center"], log["radius"], log["target"], scenario.target_set_radius
+    )
     metrics = {
         "scenario": scenario.name,
         "reached": t_reach is not None and stopped is None,

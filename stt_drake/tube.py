@@ -66,7 +66,7 @@ def attraction_flow(error: np.ndarray, k1: float, duration: float) -> np.ndarray
     return error - np.sign(error) * remaining**1.5
 
 
-def reach_time(error: np.ndarray, k1: float) -> float:
+def attraction_reach_time(error: np.ndarray, k1: float) -> float:
     """Time for the attraction alone to bring c to η: max_i 3|e_i|^{2/3}/(2 k1)."""
     return float(np.max(3.0 * np.abs(error) ** (2.0 / 3.0) / (2.0 * k1)))
 
