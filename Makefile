@@ -22,7 +22,7 @@ lint: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/ruff check .
-	DRAKE_ALLOW_NETWORK=meshcat MPLBACKEND=Agg $(BIN)/python -m pytest -n 2
+	DRAKE_ALLOW_NETWORK=meshcat MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist loadfile
 
 clean:
 	rm -rf $(VENV) results .pytest_cache .ruff_cache .hypothesis

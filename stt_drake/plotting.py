@@ -71,6 +71,11 @@ _CMAP_RANGE = (0.35, 0.95)
 _LIGHT_ALPHA, _DARK_ALPHA = 0.14, 0.38
 #: Markers that tell obstacles apart in line plots when their σ colours coincide.
 _OBSTACLE_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">", "*")
+#: Up to this many obstacles the per-obstacle margin panel has a legend, beyond it a σ
+#: colourbar; it is also how many of the most critical obstacles its y axis keeps in view.
+_LEGEND_MAX = 6
+#: Beyond this many obstacles the 3D tube plot draws them thinner, fainter and sparser.
+_MANY_OBSTACLES = 10
 #: Panels of :func:`plot_margins` for margins columns 0..3: (column, title, y label).
 _MARGIN_PANELS = (
     (0, "output in tube", r"$r - \Vert y - c\Vert$ (m)"),
@@ -308,9 +313,7 @@ def plot_snapshots(log: Mapping[str, Any], times: Sequence[float] | None = None)
                 Circle(center, run.obstacle_radius[index, j], fc="none", ec=color, lw=1.4, zorder=3)
             )
             ax.plot(*run.mean[: index + 1, j].T, ls=":", lw=0.9, color=color, zorder=2)
-            ax.annotate(
-                str(j + 1), center, ha="center", va="center", fontsize=7, color=color, zorder=3
-            )
+            ax.annotate(str(j), center, ha="center", va="center", fontsize=7, color=color, zorder=3)
         ax.add_patch(
             Circle(run.start, run.initial_set_radius, fc="none", ec=PALETTE["start"], lw=1.3)
         )
@@ -364,7 +367,8 @@ def plot_tube_3d(log: Mapping[str, Any], circles: int = 60) -> Figure:
     """The tube in (x, y, t): stacked tube circles, the output path and obstacle mean paths.
 
     Obstacle mean paths are coloured by σ_j; thin rings show the boundary of
-    {q̂_j ≤ ε_j} at every 4th tube-circle time.
+    {q̂_j ≤ ε_j} at every 4th tube-circle time. With more than :data:`_MANY_OBSTACLES`
+    obstacles the paths are thinner and fainter and the rings every 8th circle time.
 
     Args:
         log: a run log (see the module docstring) with dimension 2.
@@ -395,15 +399,22 @@ def plot_tube_3d(log: Mapping[str, Any], circles: int = 60) -> Figure:
         (run.target, run.target_set_radius, run.t[-1], "target"),
     ):
         ax.plot(*(center + set_radius * ring).T, np.full(angle.size, time), color=PALETTE[key])
-    ax.plot(*run.output.T, run.t, color=PALETTE["trajectory"], lw=1.5)
+    # Many obstacles: thinner, fainter paths and sparser rings keep the tube and y readable.
+    many = run.count > _MANY_OBSTACLES
+    path_lw, path_alpha = (1.0, 0.55) if many else (2.0, 1.0)
+    ring_lw, ring_alpha, ring_stride = (0.4, 0.3, 8) if many else (0.6, 0.6, 4)
+    ax.plot(*run.output.T, run.t, color=PALETTE["trajectory"], lw=2.0 if many else 1.5)
     for j in range(run.count):
         path = np.column_stack([run.mean[:, j], run.t])
         segments = np.stack([path[:-1], path[1:]], axis=1)
         sigma_mid = 0.5 * (run.sigma[:-1, j] + run.sigma[1:, j])
-        ax.add_collection3d(Line3DCollection(segments, colors=cmap(norm(sigma_mid)), lw=2.0))
-    # The {q̂_j ≤ ε_j} discs as rings at every 4th tube time: the clearance the output needs.
+        ax.add_collection3d(
+            Line3DCollection(segments, colors=cmap(norm(sigma_mid)), lw=path_lw, alpha=path_alpha)
+        )
+    # The {q̂_j ≤ ε_j} discs as rings at every 4th (8th when many) tube time: the clearance
+    # the output needs.
     obstacle_rings, ring_colors = [], []
-    for i in picks[::4]:
+    for i in picks[::ring_stride]:
         for j, disc in enumerate(_obstacle_discs(run, i)[:, 1]):
             if np.isfinite(disc) and disc > 0.0:
                 obstacle_rings.append(
@@ -411,7 +422,9 @@ def plot_tube_3d(log: Mapping[str, Any], circles: int = 60) -> Figure:
                 )
                 ring_colors.append(cmap(norm(run.sigma[i, j])))
     if obstacle_rings:
-        ax.add_collection3d(Line3DCollection(obstacle_rings, colors=ring_colors, lw=0.6, alpha=0.6))
+        ax.add_collection3d(
+            Line3DCollection(obstacle_rings, colors=ring_colors, lw=ring_lw, alpha=ring_alpha)
+        )
 
     points = [run.output, run.center - run.radius.max(initial=0.0), run.center + run.radius.max()]
     points += [run.start - run.initial_set_radius, run.start + run.initial_set_radius]
@@ -428,9 +441,18 @@ def plot_tube_3d(log: Mapping[str, Any], circles: int = 60) -> Figure:
     ax.view_init(elev=22, azim=-60)
     handles = [
         Line2D([], [], color=PALETTE["tube"], lw=0.9, label=r"tube $\Gamma(t)$"),
-        Line2D([], [], color=PALETTE["trajectory"], lw=1.5, label="output y"),
-        Line2D([], [], color=cmap(0.6), lw=2.0, label=r"obstacle mean $\mu_j$"),
-        Line2D([], [], color=cmap(0.6), lw=0.6, label=r"$\hat{q}_j = \varepsilon_j$ ring"),
+        Line2D([], [], color=PALETTE["trajectory"], lw=2.0 if many else 1.5, label="output y"),
+        Line2D(
+            [], [], color=cmap(0.6), lw=path_lw, alpha=path_alpha, label=r"obstacle mean $\mu_j$"
+        ),
+        Line2D(
+            [],
+            [],
+            color=cmap(0.6),
+            lw=max(ring_lw, 0.6),
+            alpha=max(ring_alpha, 0.6),
+            label=r"$\hat{q}_j = \varepsilon_j$ ring",
+        ),
         Line2D([], [], color=PALETTE["start"], label="start set (t = 0)"),
         Line2D([], [], color=PALETTE["target"], label="target set (t end)"),
     ]
@@ -473,19 +495,88 @@ def _plot_margin(ax: Any, t: np.ndarray, margin: np.ndarray) -> None:
     )
 
 
+def _plot_obstacle_margins(fig: Figure, ax: Any, run: _Run) -> None:
+    """Each obstacle's output avoidance margin q̂_j(y) − ε_j over time, coloured by σ̄_j.
+
+    ≤ :data:`_LEGEND_MAX` obstacles: a "#j" legend (0-based, as in the scenario and
+    metrics); more: a σ colourbar. The y axis spans from min(0, lowest margin) up to a
+    little above the :data:`_LEGEND_MAX`-th lowest per-obstacle minimum, so the curves
+    near zero stay readable; obstacles that never come down into view are counted in a note.
+    """
+    ax.set_title("output avoidance margin per obstacle", fontsize=10)
+    ax.set_ylabel(r"$\hat{q}_j(y) - \varepsilon_j$", fontsize=9)
+    ax.axhline(0.0, color=PALETTE["reference"], lw=0.8, zorder=2)
+    if run.count == 0:
+        return
+    norm, cmap = _obstacle_colors(run)
+    margin = run.output_avoid_probability - run.epsilon  # (T, m)
+    sigma_bar = np.mean(run.sigma, axis=0)
+    few = run.count <= _LEGEND_MAX
+    for j in range(run.count):
+        style: dict[str, Any] = {"lw": 1.1, "alpha": 0.85}
+        if few:
+            style = {
+                "lw": 1.3,
+                "marker": _OBSTACLE_MARKERS[j % len(_OBSTACLE_MARKERS)],
+                "ms": 4,
+                "markevery": max(run.t.size // 8, 1),
+                "label": rf"#{j}, $\bar{{\sigma}}$ = {sigma_bar[j]:.2g} m",
+            }
+        ax.plot(run.t, margin[:, j], color=cmap(norm(sigma_bar[j])), zorder=3, **style)
+
+    finite = np.isfinite(margin)
+    if np.any(finite):
+        lowest = np.min(np.where(finite, margin, np.inf), axis=0)  # (m,) per-obstacle minimum
+        lowest = lowest[np.isfinite(lowest)]
+        bottom = min(float(np.min(lowest)), 0.0)
+        highest = float(np.max(margin[finite]))
+        critical = max(float(np.sort(lowest)[min(_LEGEND_MAX, lowest.size) - 1]), 0.0)
+        top = min(highest, critical + (critical - bottom))
+        if top <= bottom:
+            top = max(highest, bottom + 1e-3)
+        span = top - bottom
+        ax.set_ylim(bottom - 0.08 * span, top + 0.05 * span)
+        hidden = int(np.sum(lowest > top + 0.05 * span))
+        if hidden:
+            ax.text(
+                0.98,
+                0.02,
+                f"{hidden} of {run.count} obstacles stay above this axis",
+                transform=ax.transAxes,
+                ha="right",
+                va="bottom",
+                fontsize=7,
+                bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "none", "alpha": 0.8},
+                zorder=5,
+            )
+    # Below zero the output is inside {q̂_j ≤ ε_j}: the guarantee is violated.
+    ax.axhspan(-2.0, 0.0, color=PALETTE["violation"], alpha=0.07, lw=0, zorder=0)
+    if few:
+        ax.legend(
+            fontsize=7,
+            loc="center left",
+            bbox_to_anchor=(1.01, 0.5),
+            frameon=False,
+            handlelength=1.6,
+        )
+    else:
+        _sigma_colorbar(fig, run, ax, shrink=0.95, pad=0.01)
+
+
 def plot_margins(log: Mapping[str, Any]) -> Figure:
     """The radius and every guarantee's margin over time (works for any dimension).
 
     Panels: r(t) with r_min (and r_max when the log has it) — the radius_positive margin;
     output in tube (metres); the centre, tube and output avoidance probability margins;
-    and each obstacle's output avoidance probability q̂_j(y) (solid) against its ε_j
-    (dashed, same colour). A margin below zero is a violated guarantee (shaded red).
+    and each obstacle's output avoidance margin q̂_j(y) − ε_j, coloured by its mean σ
+    (see :func:`_plot_obstacle_margins`). A margin below zero is a violated guarantee
+    (shaded red).
 
     Returns:
-        The figure: six axes in a 3 × 2 grid sharing the time axis.
+        The figure: six axes in a 3 × 2 grid sharing the time axis, plus a σ colourbar
+        when there are more than :data:`_LEGEND_MAX` obstacles.
     """
     run = _decode(log)
-    norm, cmap = _obstacle_colors(run)
     fig = Figure(figsize=(10.5, 8.0), layout="constrained")
     axes = fig.subplots(3, 2, sharex=True)
     flat = axes.ravel()
@@ -505,31 +596,7 @@ def plot_margins(log: Mapping[str, Any]) -> Figure:
         ax.set_title(title, fontsize=10)
         ax.set_ylabel(label, fontsize=9)
 
-    ax = flat[5]
-    for j in range(run.count):
-        sigma_bar = float(np.mean(run.sigma[:, j]))
-        color = cmap(norm(sigma_bar))
-        marker = _OBSTACLE_MARKERS[j % len(_OBSTACLE_MARKERS)]
-        ax.plot(
-            run.t,
-            run.output_avoid_probability[:, j],
-            color=color,
-            lw=1.3,
-            marker=marker,
-            ms=4,
-            markevery=max(run.t.size // 8, 1),
-            label=rf"$\hat{{q}}_{{{j + 1}}}(y)$, $\bar{{\sigma}}$ = {sigma_bar:.2g} m",
-        )
-        ax.plot(run.t, run.epsilon[:, j], color=color, ls="--", lw=1.0)
-    if run.count:
-        ax.plot(
-            [], [], color=PALETTE["reference"], ls="--", lw=1.0, label=r"$\varepsilon_j$ (dashed)"
-        )
-        low = min(float(np.min(run.epsilon)), float(np.min(run.output_avoid_probability)))
-        ax.set_ylim(max(low - 0.05 * (1.0 - low) - 1e-3, 0.0), 1.0 + 0.02 * (1.0 - low) + 1e-3)
-        ax.legend(fontsize=7, loc="lower right")
-    ax.set_title("output avoidance per obstacle", fontsize=10)
-    ax.set_ylabel(r"$\hat{q}_j(y) = P(\Vert y - O_j\Vert \geq r_{o,j})$", fontsize=9)
+    _plot_obstacle_margins(fig, flat[5], run)
 
     for ax in flat:
         ax.grid(alpha=0.25, lw=0.5)

@@ -208,10 +208,15 @@ def _check_keys(schema: Any, data: Any, path: str) -> None:
             known = ", ".join("!" + c.__name__ for c in classes)
             raise ScenarioError(f"{path}: unknown type !{tag}; expected one of {known}")
         schema = named[0] if named else classes[0]
-    fields = getattr(schema, "__dataclass_fields__", None)
-    if fields is None:
+    elif data.get("__tag__") is not None:  # a tag where the field is not a variant
+        tag, name = data["__tag__"], getattr(schema, "__name__", "?")
+        if tag != name:
+            raise ScenarioError(f"{path}: unknown type !{tag}; expected {name} (untagged)")
+        raise ScenarioError(f"{path}: {name} is the only type here: drop the !{tag} tag")
+    hints = _field_types(schema)
+    if hints is None:
         return
-    hints = _type_hints(schema)
+    fields = hints
     for key, value in data.items():
         if key == "__tag__":
             continue
@@ -237,6 +242,71 @@ def _type_hints(schema: type) -> dict[str, Any]:
     return typing.get_type_hints(schema)
 
 
+def _field_types(schema: Any) -> dict[str, Any] | None:
+    """{field: type} of a dataclass or of a Drake-bound config (``__fields__``), else None."""
+    if hasattr(schema, "__dataclass_fields__"):
+        return _type_hints(schema)
+    drake_fields = getattr(schema, "__fields__", None)
+    if isinstance(schema, type) and isinstance(drake_fields, tuple):
+        return {f.name: f.type for f in drake_fields}
+    return None
+
+
+def _locate_type_error(schema: Any, data: Any, path: str) -> str | None:
+    """Find the value Drake's loader choked on, so its message can name the full path.
+
+    Only called after ``yaml_load_typed`` failed; returns None when nothing is found (the
+    caller then reports Drake's own message)."""
+    variants = getattr(schema, "__args__", None)
+    if variants is not None and not _is_list(schema):  # Union / Optional
+        if data is None and type(None) in variants:
+            return None
+        classes = [v for v in variants if v is not type(None)]
+        tag = data.get("__tag__") if isinstance(data, dict) else None
+        named = [c for c in classes if c.__name__ == tag]
+        schema = named[0] if named else classes[0]
+    got = f" (got {data!r})"
+    if _is_list(schema):
+        if not isinstance(data, list):
+            return f"{path}: must be a list{got}"
+        for i, item in enumerate(data):
+            found = _locate_type_error(schema.__args__[0], item, f"{path}[{i}]")
+            if found:
+                return found
+        return None
+    if schema is bool:
+        return None if isinstance(data, bool) else f"{path}: must be true or false{got}"
+    if schema is int:
+        ok = isinstance(data, int) and not isinstance(data, bool)
+        return None if ok or _parses(int, data) else f"{path}: must be an integer{got}"
+    if schema is float:
+        ok = isinstance(data, int | float) and not isinstance(data, bool)
+        return None if ok or _parses(float, data) else f"{path}: must be a number{got}"
+    if schema is str:
+        return None if isinstance(data, str) else f"{path}: must be a string{got}"
+    hints = _field_types(schema)
+    if hints is None:
+        return None
+    if not isinstance(data, dict):
+        return f"{path}: must be a mapping of fields{got}"
+    for key, value in data.items():
+        if key in hints:
+            found = _locate_type_error(hints[key], value, f"{path}.{key}")
+            if found:
+                return found
+    return None
+
+
+def _parses(kind: type, data: Any) -> bool:
+    if not isinstance(data, str):
+        return False
+    try:
+        kind(data)
+    except ValueError:
+        return False
+    return True
+
+
 def load_scenario(path: str | Path) -> Scenario:
     """Load, expand and validate a scenario file; raises ScenarioError on any bad input."""
     path = Path(path)
@@ -256,10 +326,12 @@ def parse_scenario(text: str, default_name: str = "scenario") -> Scenario:
     _check_keys(Scenario, raw, "scenario")
     try:
         scenario = yaml_load_typed(schema=Scenario, data=text)
-    except (RuntimeError, ValueError, TypeError) as error:
-        raise ScenarioError(f"scenario: {error}") from None
+    except (RuntimeError, ValueError, TypeError, AssertionError) as error:
+        located = _locate_type_error(Scenario, raw, "scenario")
+        raise ScenarioError(located or f"scenario: {error}") from None
     if not scenario.name:
         scenario.name = default_name
+    _validate_dimension(scenario)
     expand_random_obstacles(scenario)
     validate(scenario)
     return scenario
@@ -378,16 +450,21 @@ def _validate_controller(config: ControllerConfig, n: int, stages: int) -> None:
         _require(all(r >= 0.0 for r in funnel.rate), f"{where}.rate", "must be ≥ 0", funnel.rate)
 
 
+def _validate_dimension(scenario: Scenario) -> None:
+    """The plant fixes n; `start` must match it before any other vector is checked."""
+    expected = PLANT_DIMENSION[type(scenario.plant)]
+    _require(
+        scenario.dimension == expected,
+        "scenario.start",
+        f"{type(scenario.plant).__name__} works in {expected} dimensions: "
+        f"give {expected} entries",
+        scenario.start,
+    )
+
+
 def _validate_plant(scenario: Scenario) -> None:
     plant, n = scenario.plant, scenario.dimension
     path = "scenario.plant"
-    expected = PLANT_DIMENSION[type(plant)]
-    _require(
-        n == expected,
-        "scenario.start",
-        f"{type(plant).__name__} works in {expected} dimensions: give {expected} entries",
-        scenario.start,
-    )
     if isinstance(plant, OmniRobot):
         for name in ("wheel_radius", "base_radius", "nominal_wheel_radius", "nominal_base_radius"):
             value = getattr(plant, name)
@@ -408,6 +485,7 @@ def initial_output(scenario: Scenario) -> np.ndarray:
 
 def validate(scenario: Scenario) -> None:
     """Check every rule of the paper and of the file format; raise ScenarioError."""
+    _validate_dimension(scenario)
     n = scenario.dimension
     _require(n >= 1, "scenario.start", "must have at least one entry", scenario.start)
     _require_vector(scenario.start, n, "scenario.start")

@@ -1,0 +1,26 @@
+"""Shared fixtures: closed-loop runs are expensive, so each scenario is simulated once per
+test session (tests run with `--dist loadfile`, so one worker owns each test file)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from stt_drake.run import RunResult, simulate
+from stt_drake.scenario import load_scenario
+
+DIAGRAMS = Path(__file__).resolve().parent.parent / "diagrams"
+
+
+@pytest.fixture(scope="session")
+def run_scenario():
+    """Simulate diagrams/<name>.yaml once and cache the RunResult."""
+    cache: dict[str, RunResult] = {}
+
+    def run(name: str) -> RunResult:
+        if name not in cache:
+            cache[name] = simulate(load_scenario(DIAGRAMS / f"{name}.yaml"))
+        return cache[name]
+
+    return run
