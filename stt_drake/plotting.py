@@ -499,9 +499,10 @@ def _plot_obstacle_margins(fig: Figure, ax: Any, run: _Run) -> None:
     """Each obstacle's output avoidance margin q̂_j(y) − ε_j over time, coloured by σ̄_j.
 
     ≤ :data:`_LEGEND_MAX` obstacles: a "#j" legend (0-based, as in the scenario and
-    metrics); more: a σ colourbar. The y axis spans from min(0, lowest margin) up to a
-    little above the :data:`_LEGEND_MAX`-th lowest per-obstacle minimum, so the curves
-    near zero stay readable; obstacles that never come down into view are counted in a note.
+    metrics); more: a σ colourbar. The y axis spans from min(0, lowest margin) up to about
+    twice the :data:`_LEGEND_MAX`-th lowest per-obstacle minimum (never beyond the largest
+    margin), so the curves near zero stay readable; obstacles that never come down into
+    view are counted in a note.
     """
     ax.set_title("output avoidance margin per obstacle", fontsize=10)
     ax.set_ylabel(r"$\hat{q}_j(y) - \varepsilon_j$", fontsize=9)
@@ -523,6 +524,8 @@ def _plot_obstacle_margins(fig: Figure, ax: Any, run: _Run) -> None:
                 "label": rf"#{j}, $\bar{{\sigma}}$ = {sigma_bar[j]:.2g} m",
             }
         ax.plot(run.t, margin[:, j], color=cmap(norm(sigma_bar[j])), zorder=3, **style)
+    # Below zero the output is inside {q̂_j ≤ ε_j}: the guarantee is violated.
+    ax.axhspan(-2.0, 0.0, color=PALETTE["violation"], alpha=0.07, lw=0, zorder=0)
 
     finite = np.isfinite(margin)
     if np.any(finite):
@@ -549,8 +552,6 @@ def _plot_obstacle_margins(fig: Figure, ax: Any, run: _Run) -> None:
                 bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "none", "alpha": 0.8},
                 zorder=5,
             )
-    # Below zero the output is inside {q̂_j ≤ ε_j}: the guarantee is violated.
-    ax.axhspan(-2.0, 0.0, color=PALETTE["violation"], alpha=0.07, lw=0, zorder=0)
     if few:
         ax.legend(
             fontsize=7,

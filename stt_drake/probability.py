@@ -38,6 +38,9 @@ _INV_SQRT_2PI = 1.0 / np.sqrt(2.0 * np.pi)
 #: r_max term, under double rounding.
 PRUNE_HEADROOM_NU = 40.0
 
+#: Φ⁻¹(2⁻⁵⁴): below this b − a the noncentral chi survival function is 1 in double precision.
+_SF_IS_ONE_BELOW = float(special.ndtri(2.0**-54))
+
 
 def _normal_pdf(x: np.ndarray) -> np.ndarray:
     return _INV_SQRT_2PI * np.exp(-0.5 * x * x)
@@ -63,10 +66,15 @@ def noncentral_chi_sf(threshold: np.ndarray, offset: np.ndarray, dimension: int)
             2.0 * b * _normal_pdf(b),
         )
         return special.ndtr(a - b) + special.ndtr(-a - b) + shell
-    # The bare Boost ufunc returns −0.0 at x = 0 when nc > 0 (scipy.stats.ncx2.sf handles
-    # that support boundary in its wrapper): P(‖Z‖² ≥ 0) = 1, also where b² underflows.
-    x = b * b
-    return np.where(x > 0.0, _ncx2_sf(x, dimension, a * a), 1.0)[()]
+    # Where the answer is 1 to double precision, return it without calling Boost: its sf
+    # returns −0.0 at x = 0 when nc > 0, and raises OverflowError (tgamma) for x ≲ 2.5e-8
+    # once nc ≳ 400. Since ‖Z‖ ≥ Z·e, 1 − sf ≤ Φ(b − a) ≤ 2⁻⁵⁴ when b − a ≤ _SF_IS_ONE_BELOW,
+    # and 1 − 2⁻⁵⁴ rounds to 1.
+    x, nc = np.broadcast_arrays(b * b, a * a)
+    compute = (x > 0.0) & (b - a > _SF_IS_ONE_BELOW)
+    result = np.ones(x.shape)
+    result[compute] = _ncx2_sf(x[compute], dimension, nc[compute])
+    return result[()]
 
 
 def noncentral_chi_isf(probability: np.ndarray, offset: np.ndarray, dimension: int) -> np.ndarray:

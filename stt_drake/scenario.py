@@ -196,7 +196,8 @@ _TaggedLoader.add_multi_constructor(
 
 
 def _check_keys(schema: Any, data: Any, path: str) -> None:
-    """Reject unknown keys with their full path (Drake's loader omits the nesting path)."""
+    """Reject unknown keys and unknown ``!Tags`` with their full path (Drake's loader omits
+    the nesting path)."""
     if not isinstance(data, dict):
         return
     variants = getattr(schema, "__args__", None)
@@ -216,12 +217,11 @@ def _check_keys(schema: Any, data: Any, path: str) -> None:
     hints = _field_types(schema)
     if hints is None:
         return
-    fields = hints
     for key, value in data.items():
         if key == "__tag__":
             continue
-        if key not in fields:
-            known = ", ".join(fields)
+        if key not in hints:
+            known = ", ".join(hints)
             raise ScenarioError(f"{path}.{key}: unknown field; known fields are: {known}")
         hint = hints[key]
         item_schema = getattr(hint, "__args__", [None])[0] if _is_list(hint) else hint
@@ -456,8 +456,7 @@ def _validate_dimension(scenario: Scenario) -> None:
     _require(
         scenario.dimension == expected,
         "scenario.start",
-        f"{type(scenario.plant).__name__} works in {expected} dimensions: "
-        f"give {expected} entries",
+        f"{type(scenario.plant).__name__} works in {expected} dimensions: give {expected} entries",
         scenario.start,
     )
 
@@ -491,7 +490,10 @@ def validate(scenario: Scenario) -> None:
     _require_vector(scenario.start, n, "scenario.start")
     _require_vector(scenario.target, n, "scenario.target")
     _require(
-        scenario.duration > 0.0, "scenario.duration", "must be > 0 (seconds)", scenario.duration
+        0.0 < scenario.duration < math.inf,
+        "scenario.duration",
+        "must be finite and > 0 (seconds)",
+        scenario.duration,
     )
     _require(
         scenario.log_period > 0.0,
@@ -583,6 +585,18 @@ def expand_random_obstacles(scenario: Scenario) -> None:
     _require(spec.count > 0, f"{path}.count", "must be ≥ 0", spec.count)
     _require_vector(spec.region_min, n, f"{path}.region_min")
     _require_vector(spec.region_max, n, f"{path}.region_max")
+    _require(
+        all(low < high for low, high in zip(spec.region_min, spec.region_max, strict=True)),
+        f"{path}.region_max",
+        "must exceed region_min on every axis",
+        spec.region_max,
+    )
+    _require(
+        0.0 < scenario.duration < math.inf,
+        "scenario.duration",
+        "must be finite and > 0 (seconds)",
+        scenario.duration,
+    )
     _require_range(spec.sigma_range, f"{path}.sigma_range", 1e-9, math.inf)
     _require_range(spec.epsilon_range, f"{path}.epsilon_range", 1e-9, 1.0)
     _require(

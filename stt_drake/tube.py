@@ -228,6 +228,8 @@ class TubeLaw:
                 remaining -= step
                 accepted += 1
                 step *= 2.0
+                if remaining <= 0.0:  # covered by this attempt, even if it was the last one
+                    return center, accepted
             else:
                 step *= 0.5
         raise RuntimeError(

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
+from matplotlib.colors import to_rgba
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle
 
@@ -32,6 +35,37 @@ P_D = np.array([0.9999, 0.999, 0.99])
 def make_log(dimension: int = 2) -> dict[str, np.ndarray]:
     """T = 50 samples over 10 s: the centre moves in a straight line from start to target
     in 8 s and stays; y circles it at 0.1 m; three obstacles move linearly."""
+    first = np.array([[2.0, 4.0, 0.0], [6.0, 1.0, 0.5], [9.0, 2.0, 1.0]])[:, :dimension]
+    velocity = np.array([[0.2, -0.1, 0.0], [-0.1, 0.15, 0.0], [0.0, 0.2, 0.0]])[:, :dimension]
+    return build_log(dimension, first, velocity, SIGMA, OBSTACLE_RADIUS, EPSILON, P_D)
+
+
+def make_cluttered_log(count: int = 50, seed: int = 7) -> dict[str, np.ndarray]:
+    """The same 2D motion among `count` random obstacles (some cross the path)."""
+    rng = np.random.default_rng(seed)
+    first = rng.uniform([-2.0, -2.0], [10.0, 8.0], size=(count, 2))
+    velocity = rng.uniform(-0.2, 0.2, size=(count, 2))
+    return build_log(
+        2,
+        first,
+        velocity,
+        sigma=rng.uniform(0.05, 1.0, count),
+        obstacle_radius=rng.uniform(0.1, 0.5, count),
+        epsilon=rng.uniform(0.7, 0.98, count),
+        p_d=np.full(count, 0.999),
+    )
+
+
+def build_log(
+    dimension: int,
+    first: np.ndarray,
+    velocity: np.ndarray,
+    sigma: np.ndarray,
+    obstacle_radius: np.ndarray,
+    epsilon: np.ndarray,
+    p_d: np.ndarray,
+) -> dict[str, np.ndarray]:
+    """A run log whose obstacle j starts at first[j] and moves at velocity[j]."""
     t = np.linspace(0.0, 10.0, SAMPLES)
     start = np.zeros(dimension)
     target = np.array([8.0, 6.0, 1.0][:dimension])
@@ -41,22 +75,19 @@ def make_log(dimension: int = 2) -> dict[str, np.ndarray]:
     wobble[:, 0], wobble[:, 1] = 0.1 * np.cos(t), 0.1 * np.sin(t)
     output = center + wobble
     radius = np.full(SAMPLES, TUBE_RADIUS)
-
-    first = np.array([[2.0, 4.0, 0.0], [6.0, 1.0, 0.5], [9.0, 2.0, 1.0]])[:, :dimension]
-    velocity = np.array([[0.2, -0.1, 0.0], [-0.1, 0.15, 0.0], [0.0, 0.2, 0.0]])[:, :dimension]
     count = first.shape[0]
     rows, q, d_hat, margins, output_q = [], [], [], [], []
     for k in range(SAMPLES):
         belief = ObstacleBelief(
             mean=first + t[k] * velocity,
-            sigma=SIGMA,
-            radius=OBSTACLE_RADIUS,
-            epsilon=EPSILON,
-            p_d=P_D,
+            sigma=sigma,
+            radius=obstacle_radius,
+            epsilon=epsilon,
+            p_d=p_d,
         )
         rows.append(belief.to_vector())
-        q.append(avoid_probability(center[k], belief.mean, SIGMA, OBSTACLE_RADIUS + R_MIN))
-        d_hat.append(np.linalg.norm(center[k] - belief.mean, axis=1) - OBSTACLE_RADIUS)
+        q.append(avoid_probability(center[k], belief.mean, sigma, obstacle_radius + R_MIN))
+        d_hat.append(np.linalg.norm(center[k] - belief.mean, axis=1) - obstacle_radius)
         sample = evaluate_invariants(output[k], center[k], radius[k], belief, R_MIN)
         margins.append(sample.margins)
         output_q.append(sample.output_avoid_probability)
@@ -88,8 +119,43 @@ def log() -> dict[str, np.ndarray]:
     return make_log(2)
 
 
+@pytest.fixture(scope="module")
+def cluttered_log() -> dict[str, np.ndarray]:
+    return make_cluttered_log(50)
+
+
 def circles(ax) -> list[Circle]:
     return [patch for patch in ax.patches if isinstance(patch, Circle)]
+
+
+def output_margins(log) -> np.ndarray:
+    """(T, m) q̂_j(y) − ε_j, with ε_j read back from the logged belief."""
+    epsilon = np.array([ObstacleBelief.from_vector(row, 2).epsilon for row in log["belief"]])
+    return log["output_avoid_probability"] - epsilon
+
+
+def obstacle_margin_panel(fig):
+    (ax,) = [ax for ax in fig.axes if ax.get_title() == "output avoidance margin per obstacle"]
+    return ax
+
+
+def margin_curves(ax) -> list[np.ndarray]:
+    """The per-obstacle curves of the panel, in drawing order (the zero line has 2 points)."""
+    return [np.asarray(line.get_ydata()) for line in ax.lines if len(line.get_ydata()) == SAMPLES]
+
+
+def check_margin_panel(ax, log) -> None:
+    margin = output_margins(log)
+    curves = margin_curves(ax)
+    assert len(curves) == margin.shape[1]
+    for j, curve in enumerate(curves):
+        np.testing.assert_array_equal(curve, margin[:, j])
+    assert any(tuple(line.get_ydata()) == (0.0, 0.0) for line in ax.lines)  # zero line
+    low, high = ax.get_ylim()
+    lowest = np.sort(margin.min(axis=0))
+    assert low <= min(float(lowest[0]), 0.0) and high > 0.0
+    # the most critical obstacles reach into view even if the top is clipped
+    assert np.all(lowest[: min(6, lowest.size)] <= high)
 
 
 def test_level_set_radius_matches_avoid_probability_in_2d_and_3d():
@@ -122,6 +188,8 @@ def test_snapshots_axes_circles_and_single_legend(log):
         assert ax.get_ylim() == panels[0].get_ylim()
         assert ax.get_xlabel() == "x (m)"
         assert ax.get_legend() is None
+        # obstacle labels are 0-based, like the scenario and the metrics
+        assert sorted(text.get_text() for text in ax.texts) == ["0", "1", "2"]
     assert panels[0].get_ylabel() == "y (m)"
     assert len(fig.legends) == 1
     assert panels[0].get_title() == "t = 0.0 s"
@@ -181,10 +249,46 @@ def test_margins_panels_plot_the_right_columns(log):
             c.shape == (SAMPLES,) and np.array_equal(c, log["margins"][:, column]) for c in curves
         ), f"panel {ax.get_title()!r} does not show margins column {column}"
     per_obstacle = fig.axes[5]
-    curves = [np.asarray(line.get_ydata()) for line in per_obstacle.lines]
-    for j in range(3):
-        assert any(np.array_equal(c, log["output_avoid_probability"][:, j]) for c in curves)
-        assert any(c.shape == (SAMPLES,) and np.all(c == EPSILON[j]) for c in curves)
+    assert per_obstacle is obstacle_margin_panel(fig)
+    check_margin_panel(per_obstacle, log)
+    # coloured by σ: the larger σ, the darker (Reds)
+    lines = [line for line in per_obstacle.lines if len(line.get_ydata()) == SAMPLES]
+    brightness = [sum(to_rgba(line.get_color())[:3]) for line in lines]
+    assert np.argsort(brightness).tolist() == np.argsort(-SIGMA).tolist()
+    # ≤ 6 obstacles: a compact 0-based legend, no colourbar
+    legend = per_obstacle.get_legend()
+    assert [text.get_text().split(",")[0] for text in legend.get_texts()] == ["#0", "#1", "#2"]
+
+
+def test_many_obstacles_margin_panel_has_a_colourbar_not_a_legend(cluttered_log):
+    fig = plot_margins(cluttered_log)
+    per_obstacle = obstacle_margin_panel(fig)
+    check_margin_panel(per_obstacle, cluttered_log)
+    legend = per_obstacle.get_legend()
+    assert legend is None or len(legend.get_texts()) <= 6
+    assert not fig.legends
+    assert len(fig.axes) == 7 and fig.axes[-1].get_ylabel() == "σ (m)"
+    # the top is clipped so the curves near zero stay readable
+    assert per_obstacle.get_ylim()[1] < float(np.max(output_margins(cluttered_log)))
+
+
+def test_many_obstacles_save_run_figures_emits_no_warning(cluttered_log, tmp_path):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        paths = save_run_figures(cluttered_log, tmp_path)
+    assert [str(w.message) for w in caught] == []
+    assert [p.name for p in paths] == ["snapshots.png", "tube_3d.png", "margins.png"]
+
+
+def test_tube_3d_thins_many_obstacle_paths(log, cluttered_log):
+    def mean_paths(fig):
+        ax = fig.axes[0]
+        return ax.collections[1:-1]  # between the tube circles and the ε rings
+
+    few, many = mean_paths(plot_tube_3d(log)), mean_paths(plot_tube_3d(cluttered_log))
+    assert len(few) == 3 and len(many) == 50
+    assert max(c.get_linewidth().max() for c in many) < min(c.get_linewidth().min() for c in few)
+    assert all(c.get_alpha() is not None and c.get_alpha() < 1.0 for c in many)
 
 
 def test_reach_time(log):

@@ -578,6 +578,33 @@ def test_unknown_plant_tag_is_rejected():
     assert "Submarine" in message
 
 
+def test_unknown_plant_tag_without_fields_is_rejected():
+    text = dump({k: v for k, v in scenario_dict().items() if k != "plant"}) + (
+        "plant: !Submarine {}\n"
+    )
+    message = assert_rejected(text, "scenario.plant", "unknown")
+    assert "Submarine" in message
+
+
+def test_plant_written_with_its_own_tag_loads_or_names_the_plant_field():
+    """OmniRobot is the only plant type: its tag is either accepted, or refused with a
+    message that names scenario.plant and the tag (never Drake's path-less message)."""
+    text = dump({k: v for k, v in scenario_dict().items() if k != "plant"}) + (
+        "plant: !OmniRobot {wheel_radius: 0.061}\n"
+    )
+    try:
+        scenario = parse_scenario(text)
+    except ScenarioError as error:
+        assert_names(str(error), "scenario.plant", "tag")
+    else:
+        assert scenario.plant.wheel_radius == 0.061
+
+
+def test_start_of_the_wrong_dimension_is_named_before_random_obstacles_are_drawn():
+    changes = {("start",): [0.5, 0.5, 0.0], **_random(count=2)}
+    assert_rejected(scenario_text(changes), "scenario.start", "entries")
+
+
 def test_tagged_motion_written_as_text_loads():
     text = dump({k: v for k, v in scenario_dict().items() if k != "obstacles"}) + (
         "obstacles:\n  - motion: !ConstantVelocity {start: [3, 3], velocity: [0, 0]}\n"
@@ -640,8 +667,8 @@ def test_impossible_random_obstacle_count_is_rejected():
     assert_rejected(scenario_text(changes), f"{RO}.count", "clear")
 
 
-def _random_scenario(seed: int, count: int = 4):
-    changes = {("obstacles",): [], **_random(seed=seed, count=count)}
+def _random_scenario(seed: int, count: int = 4, **spec: object):
+    changes = {("obstacles",): [], **_random(seed=seed, count=count, **spec)}
     return parse_scenario(scenario_text(changes))
 
 
@@ -661,11 +688,22 @@ def test_random_obstacles_are_added_to_the_listed_ones():
     assert scenario.nu == pytest.approx(2.0 * math.log(3 + 1) / BASE["tube"]["r_min"], rel=1e-12)
 
 
+# Regions that crowd the start (0.5, 0.5), the target (4.5, 4.5), or neither: in the first
+# two many draws must be refused, so a missing check against either anchor shows up.
+REGIONS = {
+    "middle": ([1.0, 1.0], [4.0, 4.0]),
+    "near-start": ([0.0, 0.0], [2.0, 2.0]),
+    "near-target": ([3.0, 3.0], [5.0, 5.0]),
+}
+
+
+@pytest.mark.parametrize("region", sorted(REGIONS))
 @pytest.mark.parametrize("seed", [0, 11])
-def test_random_obstacles_respect_their_ranges_and_promised_clearance(seed):
+def test_random_obstacles_respect_their_ranges_and_promised_clearance(seed, region):
     count = 4
-    scenario = _random_scenario(seed, count)
-    spec = RANDOM_BASE
+    region_min, region_max = REGIONS[region]
+    scenario = _random_scenario(seed, count, region_min=region_min, region_max=region_max)
+    spec = {**RANDOM_BASE, "region_min": region_min, "region_max": region_max}
     assert len(scenario.obstacles) == count
     assert scenario.nu == pytest.approx(2.0 * math.log(count + 1) / scenario.tube.r_min)
     start, target = np.array(scenario.start), np.array(scenario.target)
@@ -858,3 +896,12 @@ def test_shipped_diagram_loads(name):
     assert scenario.name
     assert scenario.dimension == len(scenario.start) == len(scenario.target)
     assert scenario.duration > 0.0
+
+
+def test_infinite_duration_is_rejected():
+    assert_rejected(scenario_text({("duration",): float("inf")}), "scenario.duration", "finite")
+
+
+def test_reversed_random_region_is_rejected():
+    text = scenario_text(_random(region_min=[3.0, 3.0], region_max=[1.0, 4.0]))
+    assert_rejected(text, "scenario.random_obstacles.region_max", "region_min")

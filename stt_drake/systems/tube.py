@@ -115,7 +115,8 @@ class SpatiotemporalTube(LeafSystem):
     def DoCalcTimeDerivatives(  # noqa: N802 (Drake API)
         self, context: Context, derivatives: ContinuousState
     ) -> None:
-        derivatives.get_mutable_vector().SetFromVector(self.evaluation(context).center_rate)
+        if self.update_period is None:  # a fixed-rate tube has no continuous state
+            derivatives.get_mutable_vector().SetFromVector(self.evaluation(context).center_rate)
 
     def _discrete_update(self, context: Context, discrete_state: DiscreteValues) -> None:
         center, _ = self._law.advance(
