@@ -1,8 +1,15 @@
-"""The `stt-drake` command: `run` a scenario (more subcommands join as they land)."""
+"""The `stt-drake` command.
+
+Each subcommand is a module with ``add_parser(commands)`` that declares its arguments and
+sets ``handler`` (a function of the parsed arguments returning the exit code); `run` lives
+here. Exit codes are shared: 0 success, 1 a guarantee failed or the goal was missed, 2 bad
+input.
+"""
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -11,6 +18,9 @@ from pathlib import Path
 DEFAULT_SCENARIO = Path("diagrams/omni_hardware_case1.yaml")
 
 EXIT_SUCCESS, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
+
+#: Modules that add a subcommand (each defines ``add_parser(commands)``).
+SUBCOMMAND_MODULES: tuple[str, ...] = ()
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -38,6 +48,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     run.add_argument("--strict", action="store_true", help="stop at the first violated guarantee")
     run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    run.set_defaults(handler=_run)
+    for module in SUBCOMMAND_MODULES:
+        importlib.import_module(module).add_parser(commands)
     return parser
 
 
@@ -63,9 +76,7 @@ def _run(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `stt-drake` console script."""
     args = _parser().parse_args(argv)
-    if args.command == "run":
-        return _run(args)
-    raise AssertionError(f"unhandled command {args.command}")  # argparse rejects others
+    return args.handler(args)
 
 
 if __name__ == "__main__":
