@@ -45,7 +45,12 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--out", type=Path, default=None, help="output folder (default: results/<scenario name>/)"
     )
-    run.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
+    run.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="override the scenario's seed (also redraws random_obstacles)",
+    )
     run.add_argument("--strict", action="store_true", help="stop at the first violated guarantee")
     run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     run.set_defaults(handler=_run)
@@ -59,12 +64,10 @@ def _run(args: argparse.Namespace) -> int:
     from stt_drake.scenario import ScenarioError, load_scenario
 
     try:
-        scenario = load_scenario(args.scenario)
+        scenario = load_scenario(args.scenario, seed=args.seed)
     except ScenarioError as error:
         print(f"stt-drake: bad scenario {args.scenario}: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    if args.seed is not None:
-        scenario.seed = args.seed
     result = simulate(scenario, strict=True if args.strict else None)
     out_dir = args.out if args.out is not None else Path("results") / scenario.name
     written = write_outputs(result, out_dir, figures=not args.no_figures)

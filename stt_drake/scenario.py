@@ -307,15 +307,19 @@ def _parses(kind: type, data: Any) -> bool:
     return True
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Load, expand and validate a scenario file; raises ScenarioError on any bad input."""
+def load_scenario(path: str | Path, seed: int | None = None) -> Scenario:
+    """Load, expand and validate a scenario file; raises ScenarioError on any bad input.
+
+    `seed`, when given, replaces the file's `seed` before anything random is drawn, so a
+    run is reproduced from (file, seed) alone.
+    """
     path = Path(path)
     if not path.is_file():
         raise ScenarioError(f"{path}: no such scenario file")
-    return parse_scenario(path.read_text(), default_name=path.stem)
+    return parse_scenario(path.read_text(), default_name=path.stem, seed=seed)
 
 
-def parse_scenario(text: str, default_name: str = "scenario") -> Scenario:
+def parse_scenario(text: str, default_name: str = "scenario", seed: int | None = None) -> Scenario:
     """Parse scenario YAML text (see :func:`load_scenario`)."""
     try:
         raw = yaml.load(text, Loader=_TaggedLoader)
@@ -331,6 +335,8 @@ def parse_scenario(text: str, default_name: str = "scenario") -> Scenario:
         raise ScenarioError(located or f"scenario: {error}") from None
     if not scenario.name:
         scenario.name = default_name
+    if seed is not None:
+        scenario.seed = seed
     _validate_dimension(scenario)
     expand_random_obstacles(scenario)
     validate(scenario)
@@ -577,7 +583,10 @@ def _validate_initial_condition(scenario: Scenario) -> None:
 
 
 def expand_random_obstacles(scenario: Scenario) -> None:
-    """Append the `random_obstacles` draws to `scenario.obstacles` (seeded, reproducible)."""
+    """Append the `random_obstacles` draws to `scenario.obstacles`.
+
+    Reproducible: the draws depend only on (random_obstacles.seed, scenario seed).
+    """
     spec = scenario.random_obstacles
     if spec is None or spec.count == 0:
         return
@@ -607,7 +616,7 @@ def expand_random_obstacles(scenario: Scenario) -> None:
     )
     _require_range(spec.amplitude_range, f"{path}.amplitude_range", 0.0, math.inf)
     _require_range(spec.frequency_range_hz, f"{path}.frequency_range_hz", 0.0, math.inf)
-    rng = np.random.default_rng(spec.seed)
+    rng = np.random.default_rng([spec.seed, scenario.seed])
     checkpoints = np.linspace(0.0, scenario.duration, 200)
     anchors = np.array([scenario.start, scenario.target], dtype=float)
     accepted: list[Obstacle] = []
