@@ -91,8 +91,16 @@ class FunnelController:
     ) -> ControlEvaluation:
         """Control at time t for stacked states (N, n) = [x_1; ...; x_N] and tube (c, r)."""
         states = np.asarray(states, dtype=float).reshape(self.stages, -1)
-        if not (np.all(np.isfinite(states)) and np.all(np.isfinite(center))):
-            raise ValueError(f"controller input is not finite: states={states}, center={center}")
+        if not (
+            np.all(np.isfinite(states))
+            and np.all(np.isfinite(center))
+            and np.isfinite(radius)
+            and np.isfinite(t)
+        ):
+            raise ValueError(
+                f"controller input is not finite: t={t}, states={states}, center={center}, "
+                f"radius={radius}"
+            )
         offset = states[0] - center
         distance = float(np.linalg.norm(offset))
         e1 = distance / radius if radius > 0.0 else np.inf

@@ -69,9 +69,9 @@ def noncentral_chi_sf(threshold: np.ndarray, offset: np.ndarray, dimension: int)
     # Where the answer is 1 to double precision, return it without calling Boost: its sf
     # returns −0.0 at x = 0 when nc > 0, and raises OverflowError (tgamma) for x ≲ 2.5e-8
     # once nc ≳ 400. Since ‖Z‖ ≥ Z·e, 1 − sf ≤ Φ(b − a) ≤ 2⁻⁵⁴ when b − a ≤ _SF_IS_ONE_BELOW,
-    # and 1 − 2⁻⁵⁴ rounds to 1.
+    # and 1 − 2⁻⁵⁴ rounds to 1. (Written so that NaN inputs still reach Boost and give NaN.)
     x, nc = np.broadcast_arrays(b * b, a * a)
-    compute = (x > 0.0) & (b - a > _SF_IS_ONE_BELOW)
+    compute = ~((x <= 0.0) | (b - a <= _SF_IS_ONE_BELOW))
     result = np.ones(x.shape)
     result[compute] = _ncx2_sf(x[compute], dimension, nc[compute])
     return result[()]

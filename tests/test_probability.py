@@ -139,6 +139,29 @@ def test_noncentral_chi_sf_at_zero_threshold_is_one(n):
 
 
 @pytest.mark.parametrize("n", DIMENSIONS)
+def test_noncentral_chi_sf_tiny_thresholds(n):
+    # Tiny b (b² down to underflow) at small and large offsets. Two bounds on 1 − sf:
+    # ‖Z‖ ≥ Z·e gives Φ(b − a); the noncentral law is stochastically larger than the central
+    # one (Anderson), and P(‖Z₀‖ ≤ b) ≤ P(|Z₀,₁| ≤ b) ≤ 2bφ(0) = b·sqrt(2/π).
+    for a in [0.0, 0.5, 25.0, 300.0]:
+        for b in [1e-170, 1e-100, 1e-10, 1e-6, 1e-4]:
+            got = noncentral_chi_sf(b, a, n)
+            bound = min(special.ndtr(b - a), b * np.sqrt(2.0 / np.pi))
+            assert 1.0 - bound - 1e-16 <= got <= 1.0, (n, a, b, got)
+            assert got == pytest.approx(_quadrature_sf(b, a, n), abs=SF_ATOL)
+
+
+@pytest.mark.parametrize("n", DIMENSIONS)
+def test_noncentral_chi_sf_propagates_nan(n):
+    # A NaN belief must surface as a NaN probability (callers detect it), never as 1.
+    assert np.isnan(noncentral_chi_sf(1.0, np.nan, n))
+    assert np.isnan(noncentral_chi_sf(np.nan, 2.0, n))
+    values = noncentral_chi_sf(np.array([1.0, 1.0]), np.array([np.nan, 2.0]), n)
+    assert np.isnan(values[0])
+    assert values[1] == pytest.approx(ncx2.sf(1.0, n, 4.0), abs=SF_ATOL)
+
+
+@pytest.mark.parametrize("n", DIMENSIONS)
 def test_noncentral_chi_sf_broadcasts_like_elementwise_calls(n):
     b = np.array([[0.5], [1.0], [4.0]])
     a = np.array([0.0, 1e-12, 2.0, 30.0])
