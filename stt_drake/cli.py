@@ -20,7 +20,11 @@ DEFAULT_SCENARIO = Path("diagrams/omni_hardware_case1.yaml")
 EXIT_SUCCESS, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
 
 #: Modules that add a subcommand (each defines ``add_parser(commands)``).
-SUBCOMMAND_MODULES: tuple[str, ...] = ()
+SUBCOMMAND_MODULES: tuple[str, ...] = (
+    "stt_drake.campaign",
+    "stt_drake.diagram_command",
+    "stt_drake.bench",
+)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -53,6 +57,11 @@ def _parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--strict", action="store_true", help="stop at the first violated guarantee")
     run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    run.add_argument(
+        "--meshcat",
+        action="store_true",
+        help="also write replay.html, a self-contained Meshcat replay of the run",
+    )
     run.set_defaults(handler=_run)
     for module in SUBCOMMAND_MODULES:
         importlib.import_module(module).add_parser(commands)
@@ -71,6 +80,14 @@ def _run(args: argparse.Namespace) -> int:
     result = simulate(scenario, strict=True if args.strict else None)
     out_dir = args.out if args.out is not None else Path("results") / scenario.name
     written = write_outputs(result, out_dir, figures=not args.no_figures)
+    if args.meshcat:
+        from stt_drake.replay import body_radius, write_meshcat_replay
+
+        written.append(
+            write_meshcat_replay(
+                result.log, out_dir / "replay.html", body_radius=body_radius(scenario.plant)
+            )
+        )
     print(summary(result))
     print(f"  wrote {', '.join(str(p) for p in written)}")
     return EXIT_SUCCESS if result.success else EXIT_FAILURE

@@ -15,8 +15,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
+
+from stt_drake import backend
 
 #: Largest normalised error the law uses; errors beyond it are saturated here.
 ERROR_SATURATION = 1.0 - 1e-9
@@ -45,6 +48,25 @@ class BoxFunnel:
         start = np.asarray(self.start, dtype=float)
         end = np.asarray(self.end, dtype=float)
         return (start - end) * np.exp(-np.asarray(self.rate, dtype=float) * t) + end
+
+
+def box_funnel_stage(
+    t: float, state: np.ndarray, reference: np.ndarray, funnel: BoxFunnel, kappa: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """One stage k ≥ 2 of Sec. 5 (eq. stage k): keep x_k inside the box funnel around r_k.
+
+    e_k = (x_k − r_k)/γ_k(t), ρ_k = ln((1 + e_k)/(1 − e_k)), ξ_k = 4 γ_k⁻¹ (1 − e_k²)⁻¹
+    (element-wise), and the next reference r_{k+1} = −κ_k ξ_k ρ_k.
+
+    Returns:
+        (r_{k+1}, e_k): the next stage's reference (the control at the last stage) and the
+        normalised error before saturation (|e_k| < 1 inside the funnel).
+    """
+    gamma = funnel.width(t)
+    e = (state - reference) / gamma
+    saturated = np.clip(e, -ERROR_SATURATION, ERROR_SATURATION)
+    xi = 4.0 / (gamma * (1.0 - saturated * saturated))
+    return -kappa * xi * transformed_error(e), e
 
 
 @dataclass(frozen=True)
@@ -86,10 +108,69 @@ class FunnelController:
     def stages(self) -> int:
         return len(self.kappa)
 
+    @cached_property
+    def _kernel_arrays(self) -> dict[int, tuple[np.ndarray, ...]]:
+        """Per dimension n: κ (N,) and the funnels' p, q, μ as (N − 1, n) float arrays."""
+        return {}
+
+    def _arrays_for(self, dimension: int) -> tuple[np.ndarray, ...]:
+        arrays = self._kernel_arrays.get(dimension)
+        if arrays is None:
+            shape = (len(self.funnels), dimension)
+
+            def stacked(name: str) -> np.ndarray:
+                rows = [np.broadcast_to(np.asarray(getattr(f, name), float), shape[1:])
+                        for f in self.funnels]
+                return np.array(rows, dtype=float).reshape(shape)
+
+            arrays = (
+                np.array(self.kappa, dtype=float),
+                stacked("start"),
+                stacked("end"),
+                stacked("rate"),
+            )
+            self._kernel_arrays[dimension] = arrays
+        return arrays
+
+    def control_from_tube(self, t: float, states: np.ndarray, tube: np.ndarray) -> np.ndarray:
+        """Only the control u, from stacked states and the `tube` port vector [c, r]: the
+        Drake system's hot path (no ControlEvaluation built). Same value as
+        ``evaluate(t, states, tube[:-1], tube[-1]).control``."""
+        kernels = backend.kernels()
+        n = len(tube) - 1
+        if kernels is not None and len(states) == self.stages * n:
+            control, _errors, finite = kernels.funnel_control_packed(
+                float(t),
+                np.asarray(states, dtype=float),
+                np.asarray(tube, dtype=float),
+                *self._arrays_for(n),
+                ERROR_SATURATION,
+            )
+            if finite:
+                return control
+        return self.evaluate(t, states, tube[:-1], tube[-1]).control
+
     def evaluate(
         self, t: float, states: np.ndarray, center: np.ndarray, radius: float
     ) -> ControlEvaluation:
-        """Control at time t for stacked states (N, n) = [x_1; ...; x_N] and tube (c, r)."""
+        """Control at time t for stacked states (N, n) = [x_1; ...; x_N] and tube (c, r).
+
+        One call of the compiled :func:`stt_drake.kernels.funnel_control` (unless the numpy
+        path is selected, see :mod:`stt_drake.backend`); non-finite inputs go on to the
+        reference path below, which names them in its ValueError.
+        """
+        kernels = backend.kernels()
+        if kernels is not None:
+            center = np.asarray(center, dtype=float)
+            flat = np.asarray(states, dtype=float).reshape(-1)
+            n = center.shape[0]
+            if flat.shape[0] == self.stages * n:
+                control, errors, finite = kernels.funnel_control(
+                    float(t), flat, center, float(radius), *self._arrays_for(n), ERROR_SATURATION
+                )
+                if finite:
+                    stages = [errors[1 + k * n : 1 + (k + 1) * n] for k in range(self.stages - 1)]
+                    return ControlEvaluation(control, [errors[:1], *stages])
         states = np.asarray(states, dtype=float).reshape(self.stages, -1)
         if not (
             np.all(np.isfinite(states))
@@ -107,10 +188,6 @@ class FunnelController:
         reference = -self.kappa[0] * transformed_error(np.array(e1)) * offset
         errors = [np.array([e1])]
         for kappa, funnel, state in zip(self.kappa[1:], self.funnels, states[1:], strict=True):
-            gamma = funnel.width(t)
-            e = (state - reference) / gamma
-            saturated = np.clip(e, -ERROR_SATURATION, ERROR_SATURATION)
-            xi = 4.0 / (gamma * (1.0 - saturated * saturated))
-            reference = -kappa * xi * transformed_error(e)
+            reference, e = box_funnel_stage(t, state, reference, funnel, kappa)
             errors.append(e)
         return ControlEvaluation(control=reference, normalized_errors=errors)

@@ -18,12 +18,14 @@ guarantee *holds* when its worst margin is ≥ −HOLDS_TOLERANCE.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from stt_drake import backend
 from stt_drake.belief import ObstacleBelief
-from stt_drake.probability import avoid_probability
+from stt_drake.probability import COMPILED_DIMENSIONS, avoid_probability
 
 INVARIANT_NAMES = (
     "output_in_tube",
@@ -49,7 +51,24 @@ class InvariantSample:
 def evaluate_invariants(
     output: np.ndarray, center: np.ndarray, radius: float, belief: ObstacleBelief, r_min: float
 ) -> InvariantSample:
-    """Compute every margin at one instant, independently of the tube's own diagnostics."""
+    """Compute every margin at one instant, independently of the tube's own diagnostics.
+
+    One call of the compiled :func:`stt_drake.kernels.invariant_margins` for n ≤ 3 (unless
+    the numpy path is selected, see :mod:`stt_drake.backend`), else numpy.
+    """
+    kernels = backend.kernels()
+    if kernels is not None and belief.mean.shape[-1] in COMPILED_DIMENSIONS:
+        margins, output_q, tube_q = kernels.invariant_margins(
+            np.asarray(output, dtype=float),
+            np.asarray(center, dtype=float),
+            float(radius),
+            belief.mean,
+            belief.sigma,
+            belief.radius,
+            belief.epsilon,
+            float(r_min),
+        )
+        return InvariantSample(margins, output_q, tube_q)
     center_q = avoid_probability(center, belief.mean, belief.sigma, belief.radius + r_min)
     tube_q = avoid_probability(center, belief.mean, belief.sigma, belief.radius + max(radius, 0.0))
     output_q = avoid_probability(output, belief.mean, belief.sigma, belief.radius)
@@ -64,6 +83,29 @@ def evaluate_invariants(
         ]
     )
     return InvariantSample(margins, output_q, tube_q)
+
+
+def evaluate_invariants_packed(
+    output: np.ndarray, tube: np.ndarray, belief_vector: np.ndarray, r_min: float
+) -> InvariantSample:
+    """:func:`evaluate_invariants` on port vectors: `tube` = [c, r] and the belief vector
+    (layout of :mod:`stt_drake.belief`) — one compiled call, no ObstacleBelief built (the
+    monitor's hot path)."""
+    output = np.asarray(output, dtype=float)
+    dimension = output.shape[0]
+    kernels = backend.kernels()
+    if (
+        kernels is None
+        or dimension not in COMPILED_DIMENSIONS
+        or len(belief_vector) % (dimension + 4)  # from_vector names the problem
+    ):
+        belief = ObstacleBelief.from_vector(belief_vector, dimension)
+        return evaluate_invariants(output, tube[:-1], tube[-1], belief, r_min)
+    return InvariantSample(
+        *kernels.invariant_margins_packed(
+            output, np.asarray(tube, dtype=float), np.asarray(belief_vector, dtype=float), r_min
+        )
+    )
 
 
 @dataclass
@@ -91,9 +133,11 @@ class InvariantTracker:
     def update(self, t: float, margins: np.ndarray) -> str | None:
         """Fold in the margins at time t; return a violation message if one is new here."""
         message = None
-        for name, margin in zip(INVARIANT_NAMES, margins, strict=True):
+        values = np.asarray(margins, dtype=float).tolist()  # Python floats: no numpy scalars
+        for name, margin in zip(INVARIANT_NAMES, values, strict=True):
             record = self.records[name]
-            margin = float(margin) if np.isfinite(margin) else -np.inf
+            if not math.isfinite(margin):
+                margin = -math.inf
             if margin < record.worst_margin:
                 record.worst_margin, record.t_worst = margin, float(t)
             if margin < -HOLDS_TOLERANCE and message is None:

@@ -204,6 +204,17 @@ def _sigma_colorbar(
     bar.set_label("σ (m)")
 
 
+def decode_log(log: Mapping[str, Any]) -> _Run:
+    """A run log decoded once into arrays (obstacle beliefs unpacked per sample); the
+    figures and :mod:`stt_drake.replay` draw from it."""
+    return _decode(log)
+
+
+def obstacle_colors(log: Mapping[str, Any]) -> tuple[Normalize, Colormap]:
+    """The σ → colour map of a run's obstacles (the one every figure and the replay use)."""
+    return _obstacle_colors(_decode(log))
+
+
 def reach_time(log: Mapping[str, Any]) -> float | None:
     """First logged time after which the tube stays inside the target set, else None.
 
@@ -464,6 +475,181 @@ def plot_tube_3d(log: Mapping[str, Any], circles: int = 60) -> Figure:
     return fig
 
 
+def _sphere_surface(
+    center: np.ndarray, radius: float, resolution: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """X, Y, Z grids of the sphere B(center, radius) for ``plot_surface``."""
+    azimuth = np.linspace(0.0, 2.0 * np.pi, 2 * resolution + 1)
+    polar = np.linspace(0.0, np.pi, resolution + 1)
+    return (
+        center[0] + radius * np.outer(np.cos(azimuth), np.sin(polar)),
+        center[1] + radius * np.outer(np.sin(azimuth), np.sin(polar)),
+        center[2] + radius * np.outer(np.ones_like(azimuth), np.cos(polar)),
+    )
+
+
+def _wire_sphere(center: np.ndarray, radius: float, circles: int = 6) -> np.ndarray:
+    """(3, M) points of a wireframe sphere (meridians and parallels, NaN-separated), to draw
+    with one ``plot`` call."""
+    angle = np.linspace(0.0, 2.0 * np.pi, 61)
+    pieces = []
+    for azimuth in np.linspace(0.0, np.pi, circles, endpoint=False):  # meridians
+        pieces.append(
+            np.column_stack(
+                [np.cos(azimuth) * np.sin(angle), np.sin(azimuth) * np.sin(angle), np.cos(angle)]
+            )
+        )
+    for polar in np.linspace(0.0, np.pi, circles + 1)[1:-1]:  # parallels
+        pieces.append(
+            np.column_stack(
+                [
+                    np.sin(polar) * np.cos(angle),
+                    np.sin(polar) * np.sin(angle),
+                    np.full(angle.size, np.cos(polar)),
+                ]
+            )
+        )
+    gap = np.full((1, 3), np.nan)
+    unit = np.vstack([row for piece in pieces for row in (piece, gap)][:-1])
+    return (np.asarray(center, dtype=float) + radius * unit).T
+
+
+def _snapshot_cube(run: _Run, pad: float = 0.06) -> np.ndarray:
+    """(3, 2) limits of one cube (equal spans) around the task: the start and target sets,
+    the output and the tube over the whole run, padded by `pad` times the largest span
+    (0.5 m on the UAV's ~8 m scene, 5 cm on the arm's). Obstacles outside it are clipped,
+    so a far-away obstacle does not shrink the scene."""
+    low = [
+        run.output,
+        run.center - run.radius[:, None],
+        run.start[None] - run.initial_set_radius,
+        run.target[None] - run.target_set_radius,
+    ]
+    high = [
+        run.output,
+        run.center + run.radius[:, None],
+        run.start[None] + run.initial_set_radius,
+        run.target[None] + run.target_set_radius,
+    ]
+    lo, hi = np.min(np.vstack(low), axis=0), np.max(np.vstack(high), axis=0)
+    half = (0.5 + pad) * np.max(hi - lo)
+    middle = 0.5 * (lo + hi)
+    return np.column_stack([middle - half, middle + half])
+
+
+def _side_view(start: np.ndarray, target: np.ndarray) -> tuple[float, float]:
+    """(elevation, azimuth) in degrees of a camera looking at the start–target line from
+    the side and from above — about along the part of e_z orthogonal to that line, so the
+    detours off the straight path show; (20, −60) if the line is vertical."""
+    line = np.asarray(target, dtype=float) - np.asarray(start, dtype=float)
+    length = float(np.linalg.norm(line))
+    up = np.array([0.0, 0.0, 1.0])
+    side = up - (up @ line) * line / length**2 if length > 0.0 else up
+    if np.linalg.norm(side) < 1e-6:
+        return 20.0, -60.0
+    side = side / np.linalg.norm(side)
+    # Turned 25° about z and lowered to ≤ 35° elevation: a three-quarter view reads as 3D.
+    elevation = min(float(np.degrees(np.arcsin(side[2]))), 35.0)
+    return elevation, float(np.degrees(np.arctan2(side[1], side[0]))) + 25.0
+
+
+def _main_direction(run: _Run) -> np.ndarray:
+    """The direction along which the output path extends most (its first principal axis):
+    the start–target line of a straight trip, the transfer of a pick-and-place. Falls back
+    to target − start when the path is a point."""
+    spread = run.output - np.mean(run.output, axis=0)
+    _, singular, axes = np.linalg.svd(spread, full_matrices=False)
+    if singular[0] <= 1e-12:
+        return run.target - run.start
+    return axes[0]
+
+
+def plot_snapshots_3d(log: Mapping[str, Any], times: Sequence[float] | None = None) -> Figure:
+    """A 3D run (the UAV) at a few instants, one 3D panel per instant.
+
+    Each panel shows every obstacle as the sphere B(μ_j, r_o_j) at its mean, coloured by
+    σ_j (darker = more uncertain, as in the paper's Fig. of the UAV study) and labelled
+    with its index when there are at most :data:`_MANY_OBSTACLES`; the tube
+    Γ(t) = B(c, r) as a wireframe sphere; the output path y and the centre path so far;
+    the start and target sets as wireframe spheres. Panels share one cube of limits around
+    the task (start and target sets, output, tube; obstacles outside it are clipped) and a
+    camera looking at the output path's main direction from the side, so detours show.
+
+    Args:
+        log: a run log (see the module docstring) with dimension 3.
+        times: instants in seconds (each snapped to the nearest sample). Default: the
+            start, halfway to the reach time (or to the end) and the end.
+
+    Returns:
+        The figure: one 3D axes per instant plus a σ colourbar (when there are obstacles).
+    """
+    run = _decode(log)
+    if run.dimension != 3:
+        raise ValueError(f"plot_snapshots_3d draws 3D runs; this run has dimension {run.dimension}")
+    indices = [_nearest_index(run.t, time) for time in (times or _default_times(run))]
+    limits = _snapshot_cube(run)
+    norm, cmap = _obstacle_colors(run)
+    many = run.count > _MANY_OBSTACLES
+    resolution, surface_alpha = (6, 0.5) if many else (10, 0.6)
+    elevation, azimuth = _side_view(np.zeros(3), _main_direction(run))
+
+    panels = len(indices)
+    fig = Figure(figsize=(5.2 * panels + 1.2, 5.8), layout="constrained")
+    axes = [fig.add_subplot(1, panels, i + 1, projection="3d") for i in range(panels)]
+    for ax, index in zip(axes, indices, strict=True):
+        for j in range(run.count):
+            color = cmap(norm(run.sigma[index, j]))
+            mean = run.mean[index, j]
+            ax.plot_surface(
+                *_sphere_surface(mean, run.obstacle_radius[index, j], resolution),
+                color=color,
+                alpha=surface_alpha,
+                lw=0,
+                shade=True,
+                axlim_clip=True,
+            )
+            if not many:
+                ax.text(*mean, str(j), fontsize=7, ha="center", va="center", axlim_clip=True)
+        for center, set_radius, key in (
+            (run.start, run.initial_set_radius, "start"),
+            (run.target, run.target_set_radius, "target"),
+        ):
+            ax.plot(*_wire_sphere(center, set_radius, 4), color=PALETTE[key], lw=0.5, alpha=0.6)
+        ax.plot(
+            *_wire_sphere(run.center[index], max(run.radius[index], 0.0)),
+            color=PALETTE["tube"],
+            lw=0.7,
+            alpha=0.8,
+        )
+        ax.plot(*run.center[: index + 1].T, ls="--", lw=0.8, color=PALETTE["tube"])
+        ax.plot(*run.output[: index + 1].T, lw=1.5, color=PALETTE["trajectory"])
+        ax.plot(*run.output[index, :, None], "o", ms=3.5, color=PALETTE["trajectory"])
+        ax.set_xlim(limits[0])
+        ax.set_ylim(limits[1])
+        ax.set_zlim(limits[2])
+        ax.set_box_aspect((1.0, 1.0, 1.0))
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.set_zlabel("z (m)")
+        ax.set_title(f"t = {run.t[index]:.1f} s")
+        ax.view_init(elev=elevation, azim=azimuth)
+
+    handles = [
+        Line2D([], [], color=PALETTE["trajectory"], lw=1.5, label="output y"),
+        Line2D([], [], color=PALETTE["tube"], ls="--", lw=0.8, label="tube centre c"),
+        Line2D([], [], color=PALETTE["tube"], lw=0.7, label=r"tube $\Gamma(t) = B(c, r)$"),
+        Line2D([], [], color=PALETTE["start"], lw=0.8, label="start set"),
+        Line2D([], [], color=PALETTE["target"], lw=0.8, label="target set"),
+        Patch(fc=cmap(0.6), alpha=surface_alpha, label=r"obstacle $B(\mu_j, r_{o,j})$"),
+    ]
+    fig.legend(handles=handles, loc="outside lower center", ncol=6, fontsize=8, frameon=False)
+    if run.count:
+        _sigma_colorbar(fig, run, axes, shrink=0.7)
+    if run.name:
+        fig.suptitle(run.name)
+    return fig
+
+
 def _plot_margin(ax: Any, t: np.ndarray, margin: np.ndarray) -> None:
     """A margin curve with its zero line, negative stretches shaded, and its minimum marked."""
     finite = np.isfinite(margin)
@@ -607,11 +793,92 @@ def plot_margins(log: Mapping[str, Any]) -> Figure:
     return fig
 
 
+def plot_joint_torques(log: Mapping[str, Any]) -> Figure:
+    """Joint torques and funnel errors of a torque-controlled arm over time.
+
+    Panels: the torque the robot was asked for (controller + gravity compensation, before
+    saturation) on the heavy joints and on the wrist joints, each with its ± effort limits
+    (dashed) when the log has `effort_limit`; the stage-1 error e₁ = ‖y − c‖/r and the
+    largest stage-2 error max_i |e₂,i| (funnel boundary at 1). Windows where an external
+    force acts (`external_force` ≠ 0) are shaded; the times the task target switches
+    (`task_target`) are dotted.
+
+    Args:
+        log: a run log of the arm: `t`, `requested_torque` (T, J) and `funnel_errors`
+            (T, 1 + J); optional `effort_limit` (J,), `external_force` (T, 3) and
+            `task_target` (T, n).
+
+    Returns:
+        The figure: three axes sharing the time axis.
+    """
+    t = np.asarray(log["t"], dtype=float)
+    torque = np.asarray(log["requested_torque"], dtype=float).reshape(t.size, -1)
+    errors = np.asarray(log["funnel_errors"], dtype=float).reshape(t.size, -1)
+    limit = np.asarray(log["effort_limit"], dtype=float) if "effort_limit" in log else None
+    joints = torque.shape[1]
+    heavy = list(range(min(4, joints)))
+    groups = [(heavy, "joints 1-4"), (list(range(len(heavy), joints)), f"joints 5-{joints}")]
+    fig = Figure(figsize=(10.0, 8.0), layout="constrained")
+    axes = fig.subplots(3, 1, sharex=True)
+    colors = colormaps["tab10"](np.arange(joints) % 10)
+    for ax, (members, title) in zip(axes[:2], groups, strict=True):
+        for i in members:
+            ax.plot(t, torque[:, i], color=colors[i], lw=1.2, label=f"joint {i + 1}")
+            if limit is not None:
+                for sign in (-1.0, 1.0):
+                    ax.axhline(sign * limit[i], color=colors[i], ls="--", lw=0.8, alpha=0.7)
+        ax.axhline(0.0, color=PALETTE["reference"], lw=0.6)
+        ax.set_ylabel("τ (N·m)")
+        ax.set_title(f"requested joint torque, {title} (dashed: ± limit)", fontsize=10)
+        ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
+    ax = axes[2]
+    ax.plot(t, errors[:, 0], color=PALETTE["tube"], lw=1.3, label=r"$e_1 = \Vert y-c\Vert/r$")
+    ax.plot(
+        t,
+        np.max(np.abs(errors[:, 1:]), axis=1),
+        color=PALETTE["trajectory"],
+        lw=1.0,
+        label=r"$\max_i |e_{2,i}|$",
+    )
+    ax.axhline(1.0, color=PALETTE["violation"], ls="--", lw=0.9, label="funnel boundary")
+    ax.set_ylim(0.0, 1.1)
+    ax.set_ylabel("normalised error")
+    ax.set_title("funnel errors (stage 1: task space, stage 2: joint velocities)", fontsize=10)
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
+    ax.set_xlabel("t (s)")
+    if "external_force" in log:
+        pushed = np.linalg.norm(np.asarray(log["external_force"], dtype=float), axis=1) > 0.0
+        for ax in axes:
+            ax.fill_between(
+                t,
+                0,
+                1,
+                where=pushed,
+                transform=ax.get_xaxis_transform(),
+                color=PALETTE["violation"],
+                alpha=0.15,
+                lw=0,
+            )
+    if "task_target" in log:
+        target = np.asarray(log["task_target"], dtype=float).reshape(t.size, -1)
+        switches = t[1:][np.any(np.diff(target, axis=0) != 0.0, axis=1)]
+        for ax in axes:
+            for time in switches:
+                ax.axvline(time, color=PALETTE["target"], ls=":", lw=1.0)
+    for ax in axes:
+        ax.grid(alpha=0.25, lw=0.5)
+    name = str(np.asarray(log["name"]).item()) if "name" in log else ""
+    fig.suptitle(f"{name} — joint torques and funnel errors" if name else "joint torques")
+    return fig
+
+
 def save_run_figures(log: Mapping[str, Any], out_dir: str | Path, dpi: int = 120) -> list[Path]:
     """Write the run's figures as PNGs into `out_dir` (created if needed).
 
-    2D runs: ``snapshots.png``, ``tube_3d.png`` and ``margins.png``; other dimensions:
-    ``margins.png`` only.
+    2D runs: ``snapshots.png``, ``tube_3d.png`` and ``margins.png``; 3D runs:
+    ``snapshots.png`` (:func:`plot_snapshots_3d`) and ``margins.png``; other dimensions:
+    ``margins.png`` only. Runs of the arm (logs with `requested_torque`) also get
+    ``joint_torques.png`` (:func:`plot_joint_torques`).
 
     Returns:
         The paths written, in that order.
@@ -622,7 +889,11 @@ def save_run_figures(log: Mapping[str, Any], out_dir: str | Path, dpi: int = 120
     builders: list[tuple[str, Any]] = []
     if run.dimension == 2:
         builders += [("snapshots.png", plot_snapshots), ("tube_3d.png", plot_tube_3d)]
+    elif run.dimension == 3:
+        builders.append(("snapshots.png", plot_snapshots_3d))
     builders.append(("margins.png", plot_margins))
+    if "requested_torque" in log:  # a torque-controlled arm
+        builders.append(("joint_torques.png", lambda _: plot_joint_torques(log)))
     written = []
     for filename, build in builders:
         path = out / filename

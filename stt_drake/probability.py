@@ -9,15 +9,24 @@ freedom and noncentrality λ = a² (Proposition 1). So
 * the quantile distance d̂_j (eq. m_crv) is sigma·sqrt(F⁻¹(1 − ε; λ)) − r_o, the largest
   ball radius around x that the obstacle still misses with probability ≥ ε.
 
-Kernels: exact closed forms for n = 1 and n = 3 (normal CDF/PDF); other n use the Boost
-noncentral chi-square that ``scipy.stats.ncx2`` wraps, called as the bare ufunc to skip the
-~100 µs of ``rv_continuous`` argument handling per call.
+Two implementations (selected by :mod:`stt_drake.backend`):
+
+* compiled, for n = 1, 2, 3 (the default): :mod:`stt_drake.kernels` — closed forms for
+  n = 1, 3, a Bessel series for the n = 2 Marcum Q-function, and a bracketed Halley
+  quantile; exact to ~1e-14 (see that module);
+* numpy reference (any n, and the fallback with ``STT_DRAKE_PURE_NUMPY=1``): closed forms
+  for n = 1 and n = 3 (normal CDF/PDF); other n use the Boost noncentral chi-square that
+  ``scipy.stats.ncx2`` wraps, called as the bare ufunc to skip the ~100 µs of
+  ``rv_continuous`` argument handling per call; the quantile is Boost's isf in the upper
+  tail and cdflib's ``chndtrix`` (what ``ncx2.ppf`` uses) at 1 − ε in the lower one.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from scipy import special
+
+from stt_drake import backend
 
 try:  # the ufuncs behind scipy.stats.ncx2.sf / .isf (same Boost code, no wrapper overhead)
     from scipy.special._ufuncs import _ncx2_isf, _ncx2_sf
@@ -41,6 +50,9 @@ PRUNE_HEADROOM_NU = 40.0
 #: Φ⁻¹(2⁻⁵⁴): below this b − a the noncentral chi survival function is 1 in double precision.
 _SF_IS_ONE_BELOW = float(special.ndtri(2.0**-54))
 
+#: Output dimensions the compiled kernels cover (others always use the numpy path).
+COMPILED_DIMENSIONS = (1, 2, 3)
+
 
 def _normal_pdf(x: np.ndarray) -> np.ndarray:
     return _INV_SQRT_2PI * np.exp(-0.5 * x * x)
@@ -52,6 +64,23 @@ def noncentral_chi_sf(threshold: np.ndarray, offset: np.ndarray, dimension: int)
     This is the survival function of the noncentral chi distribution, i.e. of χ'²_n at
     threshold² with noncentrality offset².
     """
+    kernels = backend.kernels()
+    if kernels is not None and dimension in COMPILED_DIMENSIONS:
+        return _elementwise(kernels.chi_sf_array, threshold, offset, dimension)
+    return _numpy_chi_sf(threshold, offset, dimension)
+
+
+def _elementwise(
+    kernel: object, first: np.ndarray, second: np.ndarray, dimension: int
+) -> np.ndarray:
+    """Apply a compiled (1D, 1D, n) → 1D kernel to two arrays broadcast together."""
+    x, y = np.broadcast_arrays(np.asarray(first, dtype=float), np.asarray(second, dtype=float))
+    flat = kernel(np.array(x, dtype=float).ravel(), np.array(y, dtype=float).ravel(), dimension)
+    return flat.reshape(x.shape)[()]
+
+
+def _numpy_chi_sf(threshold: np.ndarray, offset: np.ndarray, dimension: int) -> np.ndarray:
+    """Reference path of :func:`noncentral_chi_sf` (numpy closed forms and Boost)."""
     b = np.asarray(threshold, dtype=float)
     a = np.asarray(offset, dtype=float)
     if dimension == 1:
@@ -79,8 +108,25 @@ def noncentral_chi_sf(threshold: np.ndarray, offset: np.ndarray, dimension: int)
 
 def noncentral_chi_isf(probability: np.ndarray, offset: np.ndarray, dimension: int) -> np.ndarray:
     """The s ≥ 0 with P(‖Z‖ ≥ s) = probability, for Z ~ N(offset·e, I_dimension)."""
-    a = np.asarray(offset, dtype=float)
-    return np.sqrt(_ncx2_isf(probability, dimension, a * a))
+    kernels = backend.kernels()
+    if kernels is not None and dimension in COMPILED_DIMENSIONS:
+        return _elementwise(kernels.chi_isf_array, probability, offset, dimension)
+    return _numpy_chi_isf(probability, offset, dimension)
+
+
+def _numpy_chi_isf(probability: np.ndarray, offset: np.ndarray, dimension: int) -> np.ndarray:
+    """Reference path of :func:`noncentral_chi_isf`: Boost's isf for p ≤ 1/2, cdflib's
+    inverse CDF at 1 − p above (1 − p is exact there; an isf near p = 1 is conditioned by
+    the absolute rounding of sf and loses ~1e-16/(n(1 − p)) relative)."""
+    p, a = np.broadcast_arrays(
+        np.asarray(probability, dtype=float), np.asarray(offset, dtype=float)
+    )
+    p, nc = p.ravel(), (a * a).ravel()
+    lower_tail = p > 0.5
+    x = np.empty(p.shape)
+    x[lower_tail] = special.chndtrix(1.0 - p[lower_tail], dimension, nc[lower_tail])
+    x[~lower_tail] = _ncx2_isf(p[~lower_tail], dimension, nc[~lower_tail])
+    return np.sqrt(x).reshape(a.shape)[()]
 
 
 def avoid_probability(

@@ -13,6 +13,7 @@ from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 
 from stt_drake.builders import SttDiagram, build_diagram
 from stt_drake.invariants import HOLDS_TOLERANCE, InvariantTracker, tube_reach_time
+from stt_drake.manipulator import summarize_arm
 from stt_drake.scenario import Scenario
 
 
@@ -25,8 +26,14 @@ class RunResult:
 
     @property
     def success(self) -> bool:
-        """Every guarantee held and the target was reached (exit code 0)."""
-        return bool(self.metrics["holds"] and self.metrics["reached"])
+        """Every guarantee held, the target was reached (every task of a sequence) and no
+        plant limit was exceeded (exit code 0)."""
+        limits = self.metrics.get("limits", {}).values()
+        return bool(
+            self.metrics["holds"]
+            and self.metrics["reached"]
+            and all(record["holds"] for record in limits)
+        )
 
 
 def collect_log(built: SttDiagram, scenario: Scenario, root_context: object) -> dict[str, Any]:
@@ -35,7 +42,7 @@ def collect_log(built: SttDiagram, scenario: Scenario, root_context: object) -> 
     n, m = scenario.dimension, len(scenario.obstacles)
     tube = logs["tube"].data().T
     diagnostics = logs["diagnostics"].data().T.reshape(-1, 3, m)
-    return {
+    log = {
         "name": np.array(scenario.name),
         "t": logs["tube"].sample_times().copy(),
         "output": logs["output"].data().T.copy(),
@@ -57,6 +64,10 @@ def collect_log(built: SttDiagram, scenario: Scenario, root_context: object) -> 
         "r_min": np.array(scenario.tube.r_min),
         "r_max": np.array(scenario.tube.r_max),
     }
+    for name in built.extra_logs:  # plant-specific signals, samples first
+        log[name] = logs[name].data().T.copy()
+    log.update({name: np.asarray(value) for name, value in built.log_constants.items()})
+    return log
 
 
 def obstacle_report(log: dict[str, np.ndarray], scenario: Scenario) -> list[dict[str, Any]]:
@@ -113,9 +124,14 @@ def simulate(scenario: Scenario, strict: bool | None = None) -> RunResult:
     t_reach = tube_reach_time(
         log["t"], log["center"], log["radius"], log["target"], scenario.target_set_radius
     )
+    # Plant-specific metrics; a task sequence is reached only when every task completed.
+    plant_metrics = built.plant_report(log) if built.plant_report is not None else {}
+    segments = plant_metrics.get("segments", [])
     metrics = {
         "scenario": scenario.name,
-        "reached": t_reach is not None and stopped is None,
+        "reached": t_reach is not None
+        and stopped is None
+        and all(segment["completed"] for segment in segments),
         "t_reach": t_reach,
         "holds": tracker.holds,
         "sim_time_s": sim_time,
@@ -127,6 +143,7 @@ def simulate(scenario: Scenario, strict: bool | None = None) -> RunResult:
         "first_violation": tracker.first_violation,
         "invariants": tracker.as_dict(),
         "obstacles": obstacle_report(log, scenario),
+        **plant_metrics,
     }
     return RunResult(metrics, log)
 
@@ -173,5 +190,9 @@ def summary(result: RunResult) -> str:
             f"    #{o['index']:<3} {o['min_distance_to_mean']:.3f} m  σ = {o['sigma']:.3f} m  "
             f"ε = {o['epsilon']:.3f}"
         )
+    arm = summarize_arm(m)
+    if arm:
+        lines.append("  tasks, joint limits and jerks:")
+        lines += arm
     lines.append("  result: " + ("SUCCESS" if result.success else "FAILURE"))
     return "\n".join(lines)

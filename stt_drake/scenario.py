@@ -114,10 +114,85 @@ class OmniRobot:
     disturbance_frequency_hz: float = 0.2
 
 
-Plant = Union[OmniRobot]  # noqa: UP007 (drake yaml needs typing.Union)
+@dataclass
+class Quadrotor:
+    """UAV as a second-order point mass in 3D (case study 2): m·v̇ = u − m·g·e_z − c_d·v + w.
+
+    `mass` (kg), `drag` (linear drag c_d, N·s/m) and `gravity` (m/s²) are the true values;
+    the STT controller knows none of them. `initial_position` defaults to the start;
+    `initial_velocity` (m/s) must lie inside stage 2's first box funnel. The wind is a
+    bounded force (N): per axis i, w_i(t) = A_i/K · Σ_k sin(2π f_k t + φ_ik) over the K
+    `wind_frequencies_hz`, so |w_i| ≤ A_i = `wind_amplitude[i]`; the phases φ_ik are drawn
+    from the scenario seed. `body_radius` (m) only sizes the Meshcat visual.
+    """
+
+    mass: float = 1.0
+    drag: float = 0.2
+    gravity: float = 9.81
+    initial_position: list[float] = field(default_factory=list)
+    initial_velocity: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    wind_amplitude: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    wind_frequencies_hz: list[float] = field(default_factory=lambda: [0.1])
+    body_radius: float = 0.25
+
+
+@dataclass
+class ArmJerk:
+    """One impulsive external push on an arm link: a half-sine force pulse of peak `force`
+    (N, world frame) at `point` (m, in the link frame) on `link`, from `time` for `duration`
+    seconds. `link` is one of fr3_link1..fr3_link7 or fr3_hand."""
+
+    time: float = 0.0
+    duration: float = 0.1
+    link: str = "fr3_link7"
+    force: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    point: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+#: libfranka's start ("ready") configuration of the FR3, rad.
+_FR3_READY = (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4)
+
+
+@dataclass
+class FrankaArm:
+    """Franka Research 3 arm with a welded Franka Hand (case study 3); y = the hand's TCP.
+
+    Robot: `initial_configuration` q(0) (rad, at rest); `gravity_compensation`: the robot
+    interface adds g(q) of the robot's own model to the commanded torque, as the real FR3
+    does (false: the STT controller alone carries the arm's weight); `jerks`: external
+    pushes. Task: the tube visits the `waypoints` (m, in order) and then the scenario's
+    `target`, one reach-avoid-stay task each; a task is done when Γ(t) ⊂ B(η_k,
+    target_set_radius) held for `hold_time` seconds. Controller mapping (kinematics only):
+    damped least squares with `jacobian_damping` λ (m), and a null-space term pulling to the
+    home posture with `posture_gain` (1/s) and away from joint limits within `limit_margin`
+    (rad) at up to `limit_gain` (rad/s).
+    """
+
+    initial_configuration: list[float] = field(default_factory=lambda: list(_FR3_READY))
+    gravity_compensation: bool = True
+    waypoints: list[list[float]] = field(default_factory=list)
+    hold_time: float = 0.3
+    jacobian_damping: float = 0.02
+    posture_gain: float = 1.0
+    limit_margin: float = 0.25
+    limit_gain: float = 1.0
+    jerks: list[ArmJerk] = field(default_factory=list)
+
+
+# OmniRobot first: an untagged `plant:` mapping is an OmniRobot (Drake's yaml takes the
+# first variant); a UAV is written `plant: !Quadrotor {...}`, the arm `plant: !FrankaArm`.
+Plant = Union[OmniRobot, Quadrotor, FrankaArm]  # noqa: UP007 (drake yaml needs typing.Union)
 
 #: Output-space dimension each plant works in.
-PLANT_DIMENSION = {OmniRobot: 2}
+PLANT_DIMENSION = {OmniRobot: 2, Quadrotor: 3, FrankaArm: 3}
+
+#: Number of stages N of eq. (sysdyn) each plant has: the controller needs N gains κ and
+#: N − 1 box funnels.
+PLANT_STAGES = {OmniRobot: 1, Quadrotor: 2, FrankaArm: 2}
+
+#: Size of the box funnels of stages 2..N where it is not n: the arm's stage 2 is on its
+#: 7 joint velocities.
+PLANT_FUNNEL_DIMENSION = {FrankaArm: 7}
 
 
 def _default_simulator_config() -> SimulatorConfig:
@@ -480,6 +555,152 @@ def _validate_plant(scenario: Scenario) -> None:
         _require_vector(plant.disturbance_amplitude, n, f"{path}.disturbance_amplitude")
         if plant.initial_position:
             _require_vector(plant.initial_position, n, f"{path}.initial_position")
+    elif isinstance(plant, Quadrotor):
+        _require(plant.mass > 0.0, f"{path}.mass", "must be > 0 (kg)", plant.mass)
+        _require(plant.drag >= 0.0, f"{path}.drag", "must be ≥ 0 (N·s/m)", plant.drag)
+        _require(plant.gravity >= 0.0, f"{path}.gravity", "must be ≥ 0 (m/s²)", plant.gravity)
+        if plant.initial_position:
+            _require_vector(plant.initial_position, n, f"{path}.initial_position")
+        _require_vector(plant.initial_velocity, n, f"{path}.initial_velocity")
+        _require_vector(plant.wind_amplitude, n, f"{path}.wind_amplitude")
+        _require(
+            all(a >= 0.0 for a in plant.wind_amplitude),
+            f"{path}.wind_amplitude",
+            "must all be ≥ 0 (N, the bound |w_i| ≤ A_i)",
+            plant.wind_amplitude,
+        )
+        frequencies = plant.wind_frequencies_hz
+        _require(
+            len(frequencies) >= 1 and all(math.isfinite(f) and f >= 0.0 for f in frequencies),
+            f"{path}.wind_frequencies_hz",
+            "needs at least one finite frequency ≥ 0 (Hz)",
+            frequencies,
+        )
+        _require(
+            plant.body_radius > 0.0,
+            f"{path}.body_radius",
+            "must be > 0 (metres)",
+            plant.body_radius,
+        )
+    elif isinstance(plant, FrankaArm):
+        _validate_franka(scenario)
+
+
+def _validate_franka(scenario: Scenario) -> None:
+    """The arm's fields, q(0) inside the joint limits, and y(0) = TCP(q(0)) within r_min of
+    the start (so y(0) ∈ Γ(0))."""
+    # Lazy: loading the arm model needs pydrake.multibody, which other plants do not.
+    from stt_drake.manipulator import ArmLimits
+    from stt_drake.systems.franka import FR3_JOINTS, FR3_LINKS, ArmKinematics
+
+    plant, path = scenario.plant, "scenario.plant"
+    _require_vector(plant.initial_configuration, FR3_JOINTS, f"{path}.initial_configuration")
+    for i, waypoint in enumerate(plant.waypoints):
+        _require_vector(waypoint, scenario.dimension, f"{path}.waypoints[{i}]")
+    _require(plant.hold_time >= 0.0, f"{path}.hold_time", "must be ≥ 0 (s)", plant.hold_time)
+    _require(
+        plant.jacobian_damping > 0.0,
+        f"{path}.jacobian_damping",
+        "must be > 0 (m)",
+        plant.jacobian_damping,
+    )
+    for name in ("posture_gain", "limit_gain"):
+        value = getattr(plant, name)
+        _require(value >= 0.0, f"{path}.{name}", "must be ≥ 0", value)
+    _require(
+        plant.limit_margin > 0.0, f"{path}.limit_margin", "must be > 0 (rad)", plant.limit_margin
+    )
+    for i, jerk in enumerate(plant.jerks):
+        where = f"{path}.jerks[{i}]"
+        _require(jerk.time >= 0.0, f"{where}.time", "must be ≥ 0 (s)", jerk.time)
+        _require(jerk.duration > 0.0, f"{where}.duration", "must be > 0 (s)", jerk.duration)
+        _require(jerk.link in FR3_LINKS, f"{where}.link", f"must be one of {FR3_LINKS}", jerk.link)
+        _require_vector(jerk.force, 3, f"{where}.force")
+        _require_vector(jerk.point, 3, f"{where}.point")
+    kinematics = ArmKinematics()
+    limits = ArmLimits.of(kinematics.plant)
+    q0 = np.asarray(plant.initial_configuration, dtype=float)
+    _require(
+        bool(np.all((limits.position_lower < q0) & (q0 < limits.position_upper))),
+        f"{path}.initial_configuration",
+        f"must lie inside the joint limits {limits.position_lower.tolist()} .. "
+        f"{limits.position_upper.tolist()} (rad)",
+        plant.initial_configuration,
+    )
+    tcp = kinematics.position(q0)
+    _require(
+        float(np.linalg.norm(tcp - np.asarray(scenario.start))) < scenario.tube.r_min,
+        "scenario.start",
+        f"must lie within r_min = {scenario.tube.r_min} m of the TCP at the initial "
+        f"configuration, {np.round(tcp, 6).tolist()}, so y(0) ∈ Γ(0)",
+        scenario.start,
+    )
+
+
+def initial_stage_states(scenario: Scenario) -> np.ndarray:
+    """x(0) = [x_1(0); ...; x_N(0)] as an (N, n) array: the position y(0) and, for a
+    second-order plant, the initial velocity."""
+    states = [initial_output(scenario)]
+    if isinstance(scenario.plant, Quadrotor):
+        states.append(np.asarray(scenario.plant.initial_velocity, dtype=float))
+    return np.vstack(states)
+
+
+def _validate_funnel_starts(scenario: Scenario) -> None:
+    """Sec. 5: each box funnel must contain its stage's initial error,
+    |x_k,i(0) − r_k,i(0)| < p_k,i, with r_k(0) from the control law at t = 0 (so r_2(0) = 0
+    when y(0) = s, and p_2 must exceed |v(0)| per axis)."""
+    if PLANT_STAGES[type(scenario.plant)] < 2:
+        return
+    # Lazy: builders imports this module; it holds the one scenario → law construction.
+    from stt_drake.builders import make_arm_law, make_funnel_controller, make_tube_law
+
+    if isinstance(scenario.plant, FrankaArm):
+        _validate_arm_funnel_start(scenario, make_arm_law(scenario), make_tube_law(scenario))
+        return
+
+    start = np.asarray(scenario.start, dtype=float)
+    radius = make_tube_law(scenario).evaluate(start, scenario.belief_at(0.0)).radius
+    states = initial_stage_states(scenario)
+    evaluation = make_funnel_controller(scenario).evaluate(0.0, states, start, radius)
+    for k, error in enumerate(evaluation.normalized_errors[1:]):
+        funnel = scenario.controller.funnels[k]
+        initial_error = np.abs(error) * np.asarray(funnel.start, dtype=float)
+        _require(
+            bool(np.all(np.abs(error) < 1.0)),
+            f"scenario.controller.funnels[{k}].start",
+            f"must exceed the initial error |x_{k + 2}(0) − r_{k + 2}(0)| = "
+            f"{np.round(initial_error, 6).tolist()} on every axis (Sec. 5)",
+            funnel.start,
+        )
+
+
+def _validate_arm_funnel_start(scenario: Scenario, law: Any, tube_law: Any) -> None:
+    """The arm starts at rest: stage 2's funnel must contain |0 − q̇_ref(0)| per joint,
+    with q̇_ref(0) from the law at t = 0 (the null-space posture term when q(0) is not the
+    home posture)."""
+    from stt_drake.systems.franka import ArmKinematics
+
+    kinematics = ArmKinematics()
+    q0 = np.asarray(scenario.plant.initial_configuration, dtype=float)
+    start = np.asarray(scenario.start, dtype=float)
+    radius = tube_law.evaluate(start, scenario.belief_at(0.0)).radius
+    evaluation = law.evaluate(
+        0.0, kinematics.position(q0), q0, np.zeros_like(q0), kinematics.jacobian(q0), start, radius
+    )
+    _require(
+        bool(np.all(np.abs(evaluation.normalized_errors[1:]) < 1.0)),
+        "scenario.controller.funnels[0].start",
+        "must exceed the initial joint-velocity error |q̇(0) − q̇_ref(0)| = "
+        f"{np.round(np.abs(evaluation.joint_velocity), 6).tolist()} rad/s on every joint (Sec. 5)",
+        scenario.controller.funnels[0].start,
+    )
+
+
+def task_targets(scenario: Scenario) -> list[np.ndarray]:
+    """The reach-avoid-stay targets in order: the arm's waypoints, then `target`."""
+    waypoints = getattr(scenario.plant, "waypoints", [])
+    return [np.asarray(p, dtype=float) for p in [*waypoints, scenario.target]]
 
 
 def initial_output(scenario: Scenario) -> np.ndarray:
@@ -549,9 +770,11 @@ def validate(scenario: Scenario) -> None:
         tube.nu,
     )
     _validate_plant(scenario)
-    stages = 1 if isinstance(scenario.plant, OmniRobot) else 2
-    _validate_controller(scenario.controller, n, stages)
+    stages = PLANT_STAGES[type(scenario.plant)]
+    funnel_dimension = PLANT_FUNNEL_DIMENSION.get(type(scenario.plant), n)
+    _validate_controller(scenario.controller, funnel_dimension, stages)
     _validate_initial_condition(scenario)
+    _validate_funnel_starts(scenario)
 
 
 def _validate_initial_condition(scenario: Scenario) -> None:

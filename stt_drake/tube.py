@@ -13,11 +13,18 @@ Fixes to the printed paper (see DESIGN.md):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
+from stt_drake import backend
 from stt_drake.belief import ObstacleBelief
-from stt_drake.probability import PRUNE_HEADROOM_NU, avoid_probability, quantile_distance
+from stt_drake.probability import (
+    COMPILED_DIMENSIONS,
+    PRUNE_HEADROOM_NU,
+    avoid_probability,
+    quantile_distance,
+)
 
 
 def minimum_nu(obstacle_count: int, r_min: float) -> float:
@@ -151,8 +158,91 @@ class TubeLaw:
         smallest = np.min(values)
         return float(smallest - np.log(np.sum(np.exp(-self.nu * (values - smallest)))) / self.nu)
 
-    def evaluate(self, center: np.ndarray, belief: ObstacleBelief) -> TubeEvaluation:
-        """Evaluate ċ, r and the diagnostics at the centre `center` (n,)."""
+    @property
+    def prune_above(self) -> float:
+        """d̂_j provably above r_max + PRUNE_HEADROOM_NU/ν is not computed exactly: its
+        soft-min weight e^{−ν d̂_j} is below e^{−40} of the r_max term, so r moves by less
+        than n_o·e^{−40}/ν (≈ 4e-18·n_o/ν m), and ċ, q_j, θ_j do not depend on d̂_j at all."""
+        return self.r_max + PRUNE_HEADROOM_NU / self.nu
+
+    @cached_property
+    def _kernel_constants(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(k2, k3, constants, constants without pruning) as float arrays for the compiled
+        kernel (layout: :data:`stt_drake.kernels.TUBE_CONSTANTS`, then η); once per law."""
+        head = [self.k1, self.r_min, self.r_max, self.nu, self.linear_zone]
+        target = np.asarray(self.target, dtype=float).ravel()
+        return (
+            np.atleast_1d(np.array(self.k2, dtype=float)).ravel(),
+            np.atleast_1d(np.array(self.k3, dtype=float)).ravel(),
+            np.array([*head, self.prune_above, *target], dtype=float),
+            np.array([*head, np.inf, *target], dtype=float),
+        )
+
+    def _gains_for(self, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        constants = self._kernel_constants
+        if constants[0].size not in (1, count) or constants[1].size not in (1, count):
+            raise ValueError(
+                f"k2/k3: need one gain or one per obstacle ({count}), "
+                f"got {constants[0].size} and {constants[1].size}"
+            )
+        return constants
+
+    def evaluate(
+        self, center: np.ndarray, belief: ObstacleBelief, prune: bool = True
+    ) -> TubeEvaluation:
+        """Evaluate ċ, r and the diagnostics at the centre `center` (n,).
+
+        One call of the compiled :func:`stt_drake.kernels.tube_step` for n ≤ 3 (unless the
+        numpy path is selected, see :mod:`stt_drake.backend`), else the numpy reference
+        below. `prune=False` computes every d̂_j exactly (see :attr:`prune_above`).
+        """
+        kernels = backend.kernels()
+        if kernels is None or belief.mean.shape[-1] not in COMPILED_DIMENSIONS:
+            return self._evaluate_numpy(center, belief, prune)
+        k2, k3, pruned, unpruned = self._gains_for(belief.mean.shape[0])
+        return TubeEvaluation(
+            *kernels.tube_step(
+                np.asarray(center, dtype=float),
+                belief.mean,
+                belief.sigma,
+                belief.radius,
+                belief.epsilon,
+                belief.p_d,
+                k2,
+                k3,
+                pruned if prune else unpruned,
+            )
+        )
+
+    def evaluate_packed(
+        self, center: np.ndarray, belief_vector: np.ndarray, prune: bool = True
+    ) -> TubeEvaluation:
+        """:meth:`evaluate` on a belief port vector (layout of :mod:`stt_drake.belief`),
+        without building the :class:`ObstacleBelief` (the Drake system's hot path)."""
+        kernels = backend.kernels()
+        dimension = len(center)
+        if (
+            kernels is None
+            or dimension not in COMPILED_DIMENSIONS
+            or len(belief_vector) % (dimension + 4)  # from_vector names the problem
+        ):
+            belief = ObstacleBelief.from_vector(belief_vector, dimension)
+            return self._evaluate_numpy(center, belief, prune)
+        k2, k3, pruned, unpruned = self._gains_for(len(belief_vector) // (dimension + 4))
+        return TubeEvaluation(
+            *kernels.tube_step_packed(
+                np.asarray(center, dtype=float),
+                np.asarray(belief_vector, dtype=float),
+                k2,
+                k3,
+                pruned if prune else unpruned,
+            )
+        )
+
+    def _evaluate_numpy(
+        self, center: np.ndarray, belief: ObstacleBelief, prune: bool = True
+    ) -> TubeEvaluation:
+        """The numpy reference of :meth:`evaluate` (any n)."""
         q = avoid_probability(center, belief.mean, belief.sigma, belief.radius + self.r_min)
         d_hat = quantile_distance(
             center,
@@ -160,7 +250,7 @@ class TubeLaw:
             belief.sigma,
             belief.radius,
             belief.epsilon,
-            prune_above=self.r_max + PRUNE_HEADROOM_NU / self.nu,
+            prune_above=self.prune_above if prune else None,
         )
         active = q <= belief.p_d
         theta = np.zeros_like(q)

@@ -6,16 +6,18 @@ import warnings
 
 import numpy as np
 import pytest
-from matplotlib.colors import to_rgba
+from matplotlib.colors import to_rgba, to_rgba_array
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle
 
 from stt_drake.belief import ObstacleBelief
 from stt_drake.invariants import evaluate_invariants
 from stt_drake.plotting import (
+    PALETTE,
     level_set_radius,
     plot_margins,
     plot_snapshots,
+    plot_snapshots_3d,
     plot_tube_3d,
     reach_time,
     save_run_figures,
@@ -311,10 +313,92 @@ def test_save_run_figures_from_an_npz(log, tmp_path):
         assert path.stat().st_size > 10_000
 
 
-def test_three_dimensional_run_writes_margins_only(tmp_path):
+def test_three_dimensional_run_writes_3d_snapshots_and_margins(tmp_path):
     log3 = make_log(3)
     with pytest.raises(ValueError, match="dimension 3"):
         plot_snapshots(log3)
+    with pytest.raises(ValueError, match="dimension 2"):
+        plot_snapshots_3d(make_log(2))
     paths = save_run_figures(log3, tmp_path)
-    assert [p.name for p in paths] == ["margins.png"]
-    assert paths[0].stat().st_size > 10_000
+    assert [p.name for p in paths] == ["snapshots.png", "margins.png"]
+    for path in paths:
+        assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert path.stat().st_size > 10_000
+
+
+def lines_3d(ax) -> list[np.ndarray]:
+    """(3, M) data of every 3D line of an axes."""
+    return [np.asarray(line.get_data_3d(), dtype=float) for line in ax.lines]
+
+
+def sphere_lines(ax, center, radius, color) -> list[np.ndarray]:
+    """Lines of `color` whose every point lies on the sphere B(center, radius)."""
+    found = []
+    for line, data in zip(ax.lines, lines_3d(ax), strict=True):
+        points = data[:, np.all(np.isfinite(data), axis=0)].T
+        if to_rgba(line.get_color()) != to_rgba(color) or len(points) < 20:
+            continue
+        if np.allclose(np.linalg.norm(points - center, axis=1), radius, rtol=0, atol=1e-9):
+            found.append(points)
+    return found
+
+
+def test_snapshots_3d_draw_tube_paths_and_obstacles_at_each_instant():
+    log3 = make_log(3)
+    picks = [0, 20, SAMPLES - 1]
+    fig = plot_snapshots_3d(log3, times=[log3["t"][k] for k in picks])
+    panels = [ax for ax in fig.axes if ax.name == "3d"]
+    assert len(panels) == 3
+    assert len(fig.axes) == 4 and fig.axes[-1].get_ylabel() == "σ (m)"
+    assert len(fig.legends) == 1
+    for ax, k in zip(panels, picks, strict=True):
+        assert ax.get_title() == f"t = {log3['t'][k]:.1f} s"
+        assert (ax.get_xlabel(), ax.get_ylabel(), ax.get_zlabel()) == ("x (m)", "y (m)", "z (m)")
+        for get in ("get_xlim", "get_ylim", "get_zlim"):
+            assert getattr(ax, get)() == getattr(panels[0], get)()
+        # one cube: equal spans, holding the start and target sets
+        spans = [np.diff(getattr(ax, get)())[0] for get in ("get_xlim", "get_ylim", "get_zlim")]
+        assert np.allclose(spans, spans[0])
+        for point, radius in ((log3["start"], 0.5), (log3["target"], TARGET_SET_RADIUS)):
+            for axis, get in enumerate(("get_xlim", "get_ylim", "get_zlim")):
+                low, high = getattr(ax, get)()
+                assert low <= point[axis] - radius and point[axis] + radius <= high
+        # obstacle labels (0-based) at the means of that instant
+        belief = ObstacleBelief.from_vector(log3["belief"][k], 3)
+        labels = {text.get_text(): np.array(text.get_position_3d()) for text in ax.texts}
+        assert sorted(labels) == ["0", "1", "2"]
+        for j in range(belief.count):
+            np.testing.assert_allclose(labels[str(j)], belief.mean[j], atol=1e-12)
+        # the path so far, the tube as a wireframe sphere B(c, r), start and target sets
+        assert any(
+            data.shape == (3, k + 1) and np.array_equal(data, log3["output"][: k + 1].T)
+            for data in lines_3d(ax)
+        )
+        assert sphere_lines(ax, log3["center"][k], TUBE_RADIUS, PALETTE["tube"])
+        assert sphere_lines(ax, log3["start"], 0.5, PALETTE["start"])
+        assert sphere_lines(ax, log3["target"], TARGET_SET_RADIUS, PALETTE["target"])
+        # one sphere surface per obstacle, darker for larger σ (Reds)
+        surfaces = ax.collections
+        assert len(surfaces) == belief.count
+        brightness = [np.mean(to_rgba_array(s.get_facecolor())[:, :3]) for s in surfaces]
+        assert np.argsort(brightness).tolist() == np.argsort(-SIGMA).tolist()
+
+
+def test_snapshots_3d_drop_labels_when_many_obstacles():
+    rng = np.random.default_rng(3)
+    count = 12
+    log3 = build_log(
+        3,
+        rng.uniform(0.0, 8.0, size=(count, 3)),
+        rng.uniform(-0.1, 0.1, size=(count, 3)),
+        sigma=rng.uniform(0.05, 0.5, count),
+        obstacle_radius=np.full(count, 0.3),
+        epsilon=np.full(count, 0.9),
+        p_d=np.full(count, 0.999),
+    )
+    fig = plot_snapshots_3d(log3)
+    panels = [ax for ax in fig.axes if ax.name == "3d"]
+    assert len(panels) == 3
+    for ax in panels:
+        assert not ax.texts
+        assert len(ax.collections) == count

@@ -443,9 +443,7 @@ def test_quantile_distance_defining_property(n):
         np.testing.assert_allclose(
             noncentral_chi_sf(threshold, offset, n), epsilon, rtol=0, atol=1e-10
         )
-        np.testing.assert_allclose(
-            ncx2.sf(threshold**2, n, offset**2), epsilon, rtol=0, atol=1e-10
-        )
+        np.testing.assert_allclose(ncx2.sf(threshold**2, n, offset**2), epsilon, rtol=0, atol=1e-10)
 
 
 @pytest.mark.parametrize("n", [2, 3])
@@ -455,7 +453,11 @@ def test_quantile_distance_defining_property_by_monte_carlo(n):
     epsilon = np.array([0.6, 0.8, 0.9, 0.97])
     d_hat = quantile_distance(point, **obstacles, epsilon=epsilon)
     estimate = _monte_carlo_avoid(
-        point, obstacles["mean"], obstacles["sigma"], obstacles["radius"] + d_hat, MC_SAMPLES,
+        point,
+        obstacles["mean"],
+        obstacles["sigma"],
+        obstacles["radius"] + d_hat,
+        MC_SAMPLES,
         seed=30 + n,
     )
     _assert_within_binomial_error(estimate, epsilon, MC_SAMPLES)

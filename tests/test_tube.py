@@ -268,8 +268,9 @@ def test_evaluate_radius_and_distances_match_unpruned_references():
     exact = _d_hat_reference(center, belief)
     # Unpruned values agree with scipy's ppf to the root-finders' accuracy (1e-9 relative,
     # see test_probability); anything else was pruned.
-    pruned = ~np.isclose(evaluation.quantile_distance + belief.radius, exact + belief.radius,
-                         rtol=1e-9, atol=0)
+    pruned = ~np.isclose(
+        evaluation.quantile_distance + belief.radius, exact + belief.radius, rtol=1e-9, atol=0
+    )
     assert np.any(pruned)  # the test really covers pruning
     # The far obstacles may come back as a lower bound, above r_max + 40/ν ...
     threshold = law.r_max + 40.0 / law.nu

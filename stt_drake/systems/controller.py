@@ -21,8 +21,8 @@ class STTController(LeafSystem):
         self.DeclareVectorOutputPort("control", dimension, self._calc_control)
 
     def _calc_control(self, context: Context, output: BasicVector) -> None:
-        tube = self._tube_port.Eval(context)
-        evaluation = self._controller.evaluate(
-            context.get_time(), self._state_port.Eval(context), tube[:-1], float(tube[-1])
+        output.SetFromVector(
+            self._controller.control_from_tube(
+                context.get_time(), self._state_port.Eval(context), self._tube_port.Eval(context)
+            )
         )
-        output.SetFromVector(evaluation.control)

@@ -14,8 +14,8 @@ from pydrake.systems.framework import (
     ValueProducer,
 )
 
-from stt_drake.belief import ObstacleBelief, belief_size
-from stt_drake.invariants import INVARIANT_NAMES, InvariantTracker, evaluate_invariants
+from stt_drake.belief import belief_size
+from stt_drake.invariants import INVARIANT_NAMES, InvariantTracker, evaluate_invariants_packed
 
 
 class InvariantMonitor(LeafSystem):
@@ -62,11 +62,12 @@ class InvariantMonitor(LeafSystem):
         )
 
     def _calc_sample(self, context: Context, value: AbstractValue) -> None:
-        tube = self._tube_port.Eval(context)
-        belief = ObstacleBelief.from_vector(self._belief_port.Eval(context), self._dimension)
         value.set_value(
-            evaluate_invariants(
-                self._output_port.Eval(context), tube[:-1], float(tube[-1]), belief, self._r_min
+            evaluate_invariants_packed(
+                self._output_port.Eval(context),
+                self._tube_port.Eval(context),
+                self._belief_port.Eval(context),
+                self._r_min,
             )
         )
 

@@ -12,6 +12,8 @@ eq. (sysdyn) that the controller must handle without knowing either.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from pydrake.systems.framework import (
     BasicVector,
@@ -54,9 +56,10 @@ class OmniRobot(LeafSystem):
         super().__init__()
         self.set_name("omni_robot")
         self._twist_from_wheels = np.linalg.inv(wheel_matrix(wheel_radius, base_radius))
+        self._twist_rows = tuple(tuple(row) for row in self._twist_from_wheels.tolist())
         self.DeclareContinuousState(BasicVector(np.append(initial_position, initial_heading)))
-        self.DeclareVectorInputPort("wheel_speeds", 3)
-        self.DeclareVectorInputPort("disturbance", 2)
+        self._wheel_port = self.DeclareVectorInputPort("wheel_speeds", 3)
+        self._disturbance_port = self.DeclareVectorInputPort("disturbance", 2)
         state_only = {self.xc_ticket()}
         for name, size in (("output", 2), ("plant_state", 2)):
             self.DeclareVectorOutputPort(
@@ -65,15 +68,21 @@ class OmniRobot(LeafSystem):
         self.DeclareStateOutputPort("pose", ContinuousStateIndex(0))
 
     def _calc_position(self, context: Context, output: BasicVector) -> None:
-        output.SetFromVector(context.get_continuous_state_vector().CopyToVector()[:2])
+        x = context.get_continuous_state_vector()
+        output.SetFromVector([x.GetAtIndex(0), x.GetAtIndex(1)])
 
     def DoCalcTimeDerivatives(  # noqa: N802 (Drake API)
         self, context: Context, derivatives: ContinuousState
     ) -> None:
-        pose = context.get_continuous_state_vector().CopyToVector()
-        twist = self._twist_from_wheels @ self.get_input_port(0).Eval(context)
-        velocity = rotation(pose[2]) @ twist[:2] + self.get_input_port(1).Eval(context)
-        derivatives.get_mutable_vector().SetFromVector(np.append(velocity, twist[2]))
+        # Scalar Python arithmetic on 3-vectors: cheaper than numpy's per-call overhead.
+        heading = context.get_continuous_state_vector().GetAtIndex(2)
+        w0, w1, w2 = self._wheel_port.Eval(context).tolist()
+        v_x, v_y, yaw_rate = (r[0] * w0 + r[1] * w1 + r[2] * w2 for r in self._twist_rows)
+        d_x, d_y = self._disturbance_port.Eval(context).tolist()
+        c, s = math.cos(heading), math.sin(heading)  # world velocity = R(ψ) body velocity
+        derivatives.get_mutable_vector().SetFromVector(
+            [c * v_x - s * v_y + d_x, s * v_x + c * v_y + d_y, yaw_rate]
+        )
 
 
 class OmniDriveInterface(LeafSystem):
@@ -91,16 +100,20 @@ class OmniDriveInterface(LeafSystem):
         super().__init__()
         self.set_name("omni_drive_interface")
         self._wheels_from_twist = wheel_matrix(nominal_wheel_radius, nominal_base_radius)
+        self._wheel_rows = tuple(tuple(row) for row in self._wheels_from_twist.tolist())
         self._heading_gain = heading_gain
         self._heading_reference = heading_reference
-        self.DeclareVectorInputPort("velocity_command", 2)
-        self.DeclareVectorInputPort("pose", 3)
+        self._command_port = self.DeclareVectorInputPort("velocity_command", 2)
+        self._pose_port = self.DeclareVectorInputPort("pose", 3)
         self.DeclareVectorOutputPort("wheel_speeds", 3, self._calc_wheel_speeds)
 
     def _calc_wheel_speeds(self, context: Context, output: BasicVector) -> None:
-        command = self.get_input_port(0).Eval(context)
-        heading = self.get_input_port(1).Eval(context)[2]
-        heading_error = np.angle(np.exp(1j * (heading - self._heading_reference)))
-        body_velocity = rotation(heading).T @ command
-        twist = np.append(body_velocity, -self._heading_gain * heading_error)
-        output.SetFromVector(self._wheels_from_twist @ twist)
+        # Scalar Python arithmetic on 3-vectors: cheaper than numpy's per-call overhead.
+        u_x, u_y = self._command_port.Eval(context).tolist()
+        heading = self._pose_port.Eval(context)[2]
+        difference = heading - self._heading_reference
+        heading_error = math.atan2(math.sin(difference), math.cos(difference))  # to (−π, π]
+        c, s = math.cos(heading), math.sin(heading)  # body velocity = R(ψ)ᵀ command
+        v_x, v_y = c * u_x + s * u_y, -s * u_x + c * u_y
+        yaw_rate = -self._heading_gain * heading_error
+        output.SetFromVector([r[0] * v_x + r[1] * v_y + r[2] * yaw_rate for r in self._wheel_rows])

@@ -1,0 +1,82 @@
+"""`stt-drake diagram SCENARIO`: the scenario's Drake Diagram as a Graphviz picture.
+
+Writes ``diagram.dot`` (Drake's ``GetGraphvizString``) and renders it to SVG and PNG with
+Graphviz's ``dot`` program (Debian package ``graphviz``), so a user sees how the systems
+are wired.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+from stt_drake.cli import DEFAULT_SCENARIO, EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS
+
+
+def write_diagram_pictures(dot_text: str, out_dir: Path, formats: tuple[str, ...]) -> list[Path]:
+    """Write `dot_text` to out_dir/diagram.dot and render it to each format with `dot`.
+
+    Raises:
+        FileNotFoundError: if Graphviz's `dot` is not installed (the .dot file is written).
+    """
+    out_dir.mkdir(parents=True, exist_ok=True)
+    dot_path = out_dir / "diagram.dot"
+    dot_path.write_text(dot_text)
+    written = [dot_path]
+    dot = shutil.which("dot")
+    if dot is None:
+        raise FileNotFoundError(
+            f"Graphviz's `dot` program is not installed, so only {dot_path} was written "
+            "(install the graphviz package, e.g. `apt-get install graphviz`)"
+        )
+    for fmt in formats:
+        picture = out_dir / f"diagram.{fmt}"
+        subprocess.run([dot, f"-T{fmt}", str(dot_path), "-o", str(picture)], check=True)
+        written.append(picture)
+    return written
+
+
+def _diagram(args: argparse.Namespace) -> int:
+    from stt_drake.builders import build_diagram
+    from stt_drake.scenario import ScenarioError, load_scenario
+
+    try:
+        scenario = load_scenario(args.scenario)
+    except ScenarioError as error:
+        print(f"stt-drake: bad scenario {args.scenario}: {error}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    diagram = build_diagram(scenario).diagram
+    out_dir = args.out if args.out is not None else Path("results") / scenario.name
+    try:
+        written = write_diagram_pictures(
+            diagram.GetGraphvizString(max_depth=args.depth), out_dir, tuple(args.format)
+        )
+    except FileNotFoundError as error:
+        print(f"stt-drake: {error}", file=sys.stderr)
+        return EXIT_FAILURE
+    print(f"wrote {', '.join(str(p) for p in written)}")
+    return EXIT_SUCCESS
+
+
+def add_parser(commands: argparse._SubParsersAction) -> None:
+    """Declare `stt-drake diagram`."""
+    parser = commands.add_parser(
+        "diagram",
+        help="draw the scenario's Drake Diagram (Graphviz SVG/PNG)",
+        description="Writes diagram.dot, diagram.svg and diagram.png into the out folder.",
+    )
+    parser.add_argument("scenario", nargs="?", type=Path, default=DEFAULT_SCENARIO)
+    parser.add_argument(
+        "--out", type=Path, default=None, help="output folder (default: results/<scenario name>/)"
+    )
+    parser.add_argument("--format", nargs="+", choices=["svg", "png"], default=["svg", "png"])
+    parser.add_argument(
+        "--depth",
+        type=int,
+        default=1,
+        help="how many levels of nested diagrams to expand (default 1)",
+    )
+    parser.set_defaults(handler=_diagram)

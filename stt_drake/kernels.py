@@ -1,0 +1,801 @@
+"""Compiled (numba) kernels for the hot path: one call per tube step, per controller
+evaluation and per invariant check.
+
+Why a second implementation exists
+----------------------------------
+The vectorised numpy/scipy code in :mod:`stt_drake.probability`, :mod:`stt_drake.tube`,
+:mod:`stt_drake.control` and :mod:`stt_drake.invariants` is the *reference*: short, close
+to the paper's equations, and built on scipy's Boost noncentral χ² for n = 2 and for the
+quantile. At the problem sizes of a robot (tens of obstacles) it spends almost all its time
+in numpy's ~1 µs per-call overhead (a tube step is ~60 small numpy calls), not in
+arithmetic (~100 flops per obstacle). This module does the same arithmetic as scalar loops
+compiled by numba, so one tube step is one native call.
+
+The two are not twins: the kernels use different algorithms (a Bessel series for the
+n = 2 Marcum Q-function instead of Boost's Poisson mixture; a bracketed Halley iteration
+from Sankaran's start instead of Boost's quantile search), so the tests comparing the two
+paths compare independent implementations, and both are compared with
+``scipy.stats.ncx2``. The n = 1, 3 closed forms exist in both because they are what the
+numpy path is fastest with too; they are a few lines each.
+
+numba (rather than Cython/C++): it is a pinned dependency already, needs no compiler
+toolchain at install time, and with ``cache=True`` compiles once per machine into
+``__pycache__`` (a few seconds on first use; importing :mod:`stt_drake` does not import
+this module — :func:`stt_drake.backend.kernels` loads it on first need).
+``STT_DRAKE_PURE_NUMPY=1`` (or :func:`stt_drake.backend.pure_numpy`) selects the reference
+path instead.
+
+Notation (paper Sec. 3, Prop. 1): for Z ~ N(a·e, I_n), a = ‖x − μ_j‖/σ_j, ‖Z‖ is
+noncentral chi with n degrees of freedom; ``sf(b) = P(‖Z‖ ≥ b)`` is q_j of eq. (prob_q)
+at b = (r_o + r_min)/σ, and the quantile s with sf(s) = ε gives d̂_j = σ s − r_o
+(eq. m_crv).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+from scipy import special
+
+_JIT = {"cache": True, "error_model": "numpy", "nogil": True}
+
+_INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
+_INV_SQRT_2 = 1.0 / math.sqrt(2.0)
+#: Φ⁻¹(2⁻⁵⁴): for b − a at or below this, 1 − sf ≤ Φ(b − a) ≤ 2⁻⁵⁴ (‖Z‖ ≥ Z·e), so the
+#: survival function is 1 to double precision (1 − 2⁻⁵⁴ rounds to 1).
+SF_IS_ONE_BELOW = float(special.ndtri(2.0**-54))
+#: Below this offset a = ‖x − μ‖/σ the law is the central one to double precision (the
+#: difference is O(a²)); treating it as 0 avoids dividing by a denormal.
+_NEGLIGIBLE_OFFSET = 1e-150
+#: Below this ab only the first term of each Bessel series is visible in double precision.
+_TINY_ARGUMENT = 1e-30
+#: Halley iterations of the quantile stop when the last step is below this fraction of s.
+QUANTILE_RTOL = 1e-14
+#: Largest number of quantile iterations (the bracket halves at least every other one).
+QUANTILE_MAX_ITERATIONS = 200
+#: Rescaling threshold of the backward Bessel recurrence.
+_BIG = 1e200
+
+
+# --------------------------------------------------------------------------- normal law
+@njit(**_JIT)
+def ndtr(x: float) -> float:
+    """Φ(x), the standard normal CDF (relative accuracy in the lower tail via erfc)."""
+    return 0.5 * math.erfc(-x * _INV_SQRT_2)
+
+
+@njit(**_JIT)
+def normal_pdf(x: float) -> float:
+    """φ(x) = e^{−x²/2}/√(2π)."""
+    return _INV_SQRT_2PI * math.exp(-0.5 * x * x)
+
+
+@njit(**_JIT)
+def ndtri(p: float) -> float:
+    """Φ⁻¹(p) by Wichura's algorithm AS 241 (PPND16, relative accuracy ~1e-16)."""
+    if not (p > 0.0 and p < 1.0):
+        if p == 0.0:
+            return -math.inf
+        if p == 1.0:
+            return math.inf
+        return math.nan
+    q = p - 0.5
+    if abs(q) <= 0.425:
+        r = 0.180625 - q * q
+        num = (
+            (
+                (
+                    (
+                        ((2509.0809287301226727 * r + 33430.575583588128105) * r
+                         + 67265.770927008700853) * r
+                        + 45921.953931549871457
+                    ) * r
+                    + 13731.693765509461125
+                ) * r
+                + 1971.5909503065514427
+            ) * r
+            + 133.14166789178437745
+        ) * r + 3.387132872796366608
+        den = (
+            (
+                (
+                    (
+                        ((5226.495278852545925 * r + 28729.085735721942674) * r
+                         + 39307.89580009271061) * r
+                        + 21213.794301586595867
+                    ) * r
+                    + 5394.1960214247511077
+                ) * r
+                + 687.1870074920579083
+            ) * r
+            + 42.313330701600911252
+        ) * r + 1.0
+        return q * num / den
+    r = p if q < 0.0 else 1.0 - p
+    r = math.sqrt(-math.log(r))
+    if r <= 5.0:
+        r -= 1.6
+        num = (
+            (
+                (
+                    (
+                        ((7.7454501427834140764e-4 * r + 0.0227238449892691845833) * r
+                         + 0.24178072517745061177) * r
+                        + 1.27045825245236838258
+                    ) * r
+                    + 3.64784832476320460504
+                ) * r
+                + 5.7694972214606914055
+            ) * r
+            + 4.6303378461565452959
+        ) * r + 1.42343711074968357734
+        den = (
+            (
+                (
+                    (
+                        ((1.05075007164441684324e-9 * r + 5.475938084995344946e-4) * r
+                         + 0.0151986665636164571966) * r
+                        + 0.14810397642748007459
+                    ) * r
+                    + 0.68976733498510000455
+                ) * r
+                + 1.6763848301838038494
+            ) * r
+            + 2.05319162663775882187
+        ) * r + 1.0
+    else:
+        r -= 5.0
+        num = (
+            (
+                (
+                    (
+                        ((2.01033439929228813265e-7 * r + 2.71155556874348757815e-5) * r
+                         + 0.0012426609473880784386) * r
+                        + 0.026532189526576123093
+                    ) * r
+                    + 0.29656057182850489123
+                ) * r
+                + 1.7848265399172913358
+            ) * r
+            + 5.4637849111641143699
+        ) * r + 6.6579046435011037772
+        den = (
+            (
+                (
+                    (
+                        ((2.04426310338993978564e-15 * r + 1.4215117583164458887e-7) * r
+                         + 1.8463183175100546818e-5) * r
+                        + 7.868691311456132591e-4
+                    ) * r
+                    + 0.0148753612908506148525
+                ) * r
+                + 0.13692988092273580531
+            ) * r
+            + 0.59983220655588793769
+        ) * r + 1.0
+    value = num / den
+    return -value if q < 0.0 else value
+
+
+# --------------------------------------------------------------------------- n = 2
+@njit(**_JIT)
+def _marcum_q1(a: float, b: float) -> tuple[float, float, float, float]:
+    """(sf, cdf, pdf, d ln pdf/ds) of ‖Z‖ at b for n = 2: sf is the Marcum Q-function Q₁(a, b).
+
+    Bessel series, both with positive terms only (so no cancellation):
+
+        a < b:  Q₁ = e^{−(a−b)²/2} Σ_{k≥0} (a/b)^k Ĩ_k(ab)           (sf directly)
+        a ≥ b:  1 − Q₁ = e^{−(a−b)²/2} Σ_{k≥1} (b/a)^k Ĩ_k(ab)       (cdf directly)
+
+    with Ĩ_k(x) = e^{−x} I_k(x); the other tail is 1 minus that. The Ĩ_k come from
+    Miller's backward recurrence I_{k−1} = I_{k+1} + (2k/x) I_k (stable: I_k is the minimal
+    solution), normalised by the exact identity Ĩ_0 + 2 Σ_{k≥1} Ĩ_k = 1, so no Bessel
+    function is evaluated at all. The recurrence starts at N = 9√x + 16, where
+    I_N/I_0 ≤ e^{−N²/2x} < 1e-17: O(√(ab)) work, ~2 ns a term (~60 terms at ab = 20,
+    ~2900 at λ = a² = 1e5 with b ≈ a). The same pass gives the density
+    f(b) = b e^{−(a−b)²/2} Ĩ_0(ab) and d ln f/ds = 1/b − b + a Ĩ_1/Ĩ_0.
+    """
+    if b <= 0.0:
+        return 1.0, 0.0, 0.0, math.inf
+    if a == 0.0:
+        g = math.exp(-0.5 * b * b)
+        return g, -math.expm1(-0.5 * b * b), b * g, 1.0 / b - b
+    x = a * b
+    gauss = math.exp(-0.5 * (a - b) * (a - b))
+    if x < _TINY_ARGUMENT:  # Ĩ_0 = 1, Ĩ_1 = x/2 and Ĩ_k≥2 = 0 to double precision
+        dlog = 1.0 / b - b + 0.5 * a * x
+        if a < b:
+            return gauss, 1.0 - gauss, b * gauss, dlog
+        cdf = 0.5 * gauss * b * b
+        return 1.0 - cdf, cdf, b * gauss, dlog
+    ratio = a / b if a < b else b / a
+    count = int(9.0 * math.sqrt(x) + 16.0)
+    two_over_x = 2.0 / x
+    v_next = 0.0  # v_{k+1}
+    v = 1.0  # v_k, starting at k = count
+    weighted = 0.0  # Σ_{i ≥ k} ratio^{i−k} v_i  (Horner, backward)
+    total = 0.0  # Σ_{i ≥ k} v_i
+    for k in range(count, 0, -1):
+        weighted = weighted * ratio + v
+        total += v
+        v_prev = v_next + k * two_over_x * v
+        v_next, v = v, v_prev
+        if v > _BIG:
+            v_next /= _BIG
+            v /= _BIG
+            weighted /= _BIG
+            total /= _BIG
+    # Now v = v_0, v_next = v_1, weighted = Σ_{k≥1} ratio^{k−1} v_k, total = Σ_{k≥1} v_k.
+    norm = v + 2.0 * total
+    pdf = b * gauss * (v / norm)
+    dlog = 1.0 / b - b + a * (v_next / v)
+    if a < b:
+        sf = gauss * (v + ratio * weighted) / norm
+        return sf, 1.0 - sf, pdf, dlog
+    cdf = gauss * (ratio * weighted) / norm
+    return 1.0 - cdf, cdf, pdf, dlog
+
+
+# --------------------------------------------------------------------------- dispatch
+@njit(**_JIT)
+def chi_sf_pdf(b: float, a: float, n: int) -> tuple[float, float, float, float]:
+    """(sf, cdf, pdf, d ln pdf/ds) of ‖Z‖ at b, Z ~ N(a e, I_n), n ∈ {1, 2, 3}.
+
+    sf = P(‖Z‖ ≥ b) and cdf = P(‖Z‖ < b) are each computed directly where that tail is the
+    small one and cancellation-free (the other is 1 minus it):
+
+    n = 1: sf = Φ(a−b) + Φ(−a−b), cdf = Φ(b−a) − Φ(−b−a); f = φ(b−a) + φ(b+a).
+    n = 3: sf = Φ(a−b) + Φ(−a−b) + φ(b−a)(1 − e^{−2ab})/a, cdf = Φ(b−a) − Φ(−b−a) −
+           φ(b−a)(1 − e^{−2ab})/a, f = (b/a)φ(b−a)(1 − e^{−2ab}); 1 − e^{−2ab} as
+           −expm1(−2ab), so a → 0 is continuous (limits 2bφ(b) and 2b²φ(b)).
+    n = 2: :func:`_marcum_q1`.
+    d ln f/ds = (n − 1)/s − s + a I_{n/2}(as)/I_{n/2−1}(as): −b + a tanh(ab) (n = 1),
+    1/b − b + a coth(ab) (n = 3).
+    """
+    if math.isnan(a) or math.isnan(b):
+        return math.nan, math.nan, math.nan, math.nan
+    if a < _NEGLIGIBLE_OFFSET:
+        a = 0.0
+    if n == 2:
+        return _marcum_q1(a, b)
+    if b <= 0.0:
+        if n == 1:
+            return 1.0, 0.0, 2.0 * normal_pdf(a), 0.0
+        return 1.0, 0.0, 0.0, math.inf
+    e = math.exp(-2.0 * a * b)  # φ(b + a) = φ(b − a)·e
+    phi = normal_pdf(b - a)
+    direct_cdf = a > b  # the lower tail is the small one
+    if direct_cdf:
+        cdf = ndtr(b - a) - ndtr(-b - a)
+    else:
+        sf = ndtr(a - b) + ndtr(-a - b)
+    if n == 1:
+        pdf = phi * (1.0 + e)
+        dlog = -b + a * (1.0 - e) / (1.0 + e)
+    else:
+        one_minus_e = -math.expm1(-2.0 * a * b)
+        if a > 0.0:
+            shell = phi * one_minus_e / a
+            pdf = (b / a) * phi * one_minus_e
+            dlog = 1.0 / b - b + (a * (1.0 + e) / one_minus_e if one_minus_e > 0.0 else 1.0 / b)
+        else:
+            shell = 2.0 * b * normal_pdf(b)
+            pdf = 2.0 * b * b * normal_pdf(b)
+            dlog = 2.0 / b - b
+        if direct_cdf:
+            cdf -= shell
+        else:
+            sf += shell
+    if direct_cdf:
+        return 1.0 - cdf, cdf, pdf, dlog
+    return sf, 1.0 - sf, pdf, dlog
+
+
+@njit(**_JIT)
+def chi_cdf_series(b: float, a: float, n: int) -> float:
+    """P(‖Z‖ ≤ b) with relative accuracy in the lower tail (small a and b), any n.
+
+    χ'²_n(λ) is a Poisson(λ/2) mixture of χ²_{n+2k}; with y = b²/2 and the lower
+    incomplete gamma written as P(ν, y) = Σ_{i≥0} t_{ν+i}, t_ν = e^{−y} y^ν/Γ(ν + 1),
+    regrouping gives  cdf = Σ_{m≥0} t_{n/2+m} · W_m,  W_m = Σ_{k≤m} e^{−λ/2}(λ/2)^k/k!,
+    a sum of positive terms (1 − sf would cancel here). Meant for a ≲ 8 (e^{−λ/2} must not
+    underflow) and b of a few units; about 2y + 20 terms.
+    """
+    if b <= 0.0:
+        return 0.0
+    y = 0.5 * b * b
+    half_lambda = 0.5 * a * a
+    order = 0.5 * n
+    t = math.exp(-y + order * math.log(y) - math.lgamma(order + 1.0))
+    w = math.exp(-half_lambda)
+    weight = w
+    total = t * weight
+    for m in range(1, 100_000):
+        t *= y / (order + m)
+        w *= half_lambda / m
+        weight += w
+        term = t * weight
+        total += term
+        if m > 2.0 * y + 5.0 and term <= 1e-17 * total:
+            break
+    return total
+
+
+@njit(**_JIT)
+def chi_sf(b: float, a: float, n: int) -> float:
+    """P(‖Z‖ ≥ b), Z ~ N(a e, I_n): 1 without any work where that is exact in double."""
+    if b - a <= SF_IS_ONE_BELOW:
+        return 1.0
+    return chi_sf_pdf(b, a, n)[0]
+
+
+@njit(**_JIT)
+def _sankaran_start(eps: float, a: float, n: int) -> float:
+    """Starting s for sf(s) = ε: Sankaran's (1959) normal approximation of χ'²_n(λ = a²)
+    inverted, which stays usable in both tails (where Patnaik's and Wilson–Hilferty's
+    degrade); where its base goes negative (lower tail of small n + λ), the small-s law
+    P(‖Z‖ ≤ s) ≈ e^{−a²/2} s^n / (2^{n/2} Γ(n/2 + 1)) is inverted instead."""
+    lam = a * a
+    k = float(n)
+    h = 1.0 - (2.0 / 3.0) * (k + lam) * (k + 3.0 * lam) / ((k + 2.0 * lam) ** 2)
+    p = (k + 2.0 * lam) / ((k + lam) ** 2)
+    m = (h - 1.0) * (1.0 - 3.0 * h)
+    z = -ndtri(eps)  # Φ⁻¹(1 − ε) without forming 1 − ε
+    base = (
+        1.0
+        + h * p * (h - 1.0 - 0.5 * (2.0 - h) * m * p)
+        + z * h * math.sqrt(2.0 * p) * (1.0 + 0.5 * m * p)
+    )
+    if base > 0.0:
+        return math.sqrt((k + lam) * base ** (1.0 / h))
+    log_cdf = math.log1p(-eps) + 0.5 * lam + 0.5 * k * math.log(2.0) + math.lgamma(0.5 * k + 1.0)
+    return math.exp(log_cdf / k)
+
+
+@njit(**_JIT)
+def chi_isf(eps: float, a: float, n: int) -> float:
+    """The s ≥ 0 with P(‖Z‖ ≥ s) = ε for Z ~ N(a e, I_n), n ∈ {1, 2, 3} (eq. m_crv).
+
+    Halley's iteration on g(s) = sf(s) − ε (g' = −f, g'' = −f·d ln f/ds), started from
+    :func:`_sankaran_start` and kept inside a bracket that is valid from the start:
+
+    * lower: ‖Z‖ ≥ Z·e gives sf(s) ≥ Φ(a − s), so sf(a − Φ⁻¹(ε)) ≥ ε;
+    * upper: ‖Z‖ ≤ a + ‖W‖ with ‖W‖² ~ χ²_n and Laurent–Massart's
+      P(‖W‖² ≥ n + 2√(nu) + 2u) ≤ e^{−u}, u = −ln ε.
+
+    For ε > 1/2 the residual is (1 − ε) − cdf(s), for the lower tail's relative accuracy.
+    Every evaluation shrinks the bracket; a step that leaves it is replaced by that bracket
+    end (once) or by bisection, so the iteration cannot diverge. Converged when a step is
+    below QUANTILE_RTOL·s.
+    """
+    if math.isnan(eps) or math.isnan(a):
+        return math.nan
+    if eps >= 1.0:
+        return 0.0
+    if eps <= 0.0:
+        return math.inf
+    # For ε > 1/2 solve cdf(s) = 1 − ε instead: near ε = 1 an ulp of sf would move s by
+    # ~1e-16/(n(1 − ε)) relative. The cdf is direct (see chi_sf_pdf) where a > s, and from
+    # the lower-tail series where a is small and the tail thin.
+    delta = 1.0 - eps  # exact for ε ≥ 1/2
+    use_cdf = eps > 0.5
+    series = delta < 1e-3 and a < 8.0
+    lo = max(a - ndtri(eps), 0.0)
+    u = -math.log(eps)
+    hi = a + math.sqrt(n + 2.0 * math.sqrt(n * u) + 2.0 * u)
+    s = _sankaran_start(eps, a, n)
+    if not (s > lo and s < hi):
+        s = 0.5 * (lo + hi)
+    tried_lo = tried_hi = False
+    for _ in range(QUANTILE_MAX_ITERATIONS):
+        sf, cdf, pdf, dlog = chi_sf_pdf(s, a, n)
+        if series:
+            g = delta - chi_cdf_series(s, a, n)
+        elif use_cdf:
+            g = delta - cdf
+        else:
+            g = sf - eps
+        if g > 0.0:
+            lo = s
+        elif g < 0.0:
+            hi = s
+        else:
+            return s
+        new = math.nan
+        if pdf > 0.0:
+            step = g / pdf  # Newton: s + (sf − ε)/f
+            denominator = 1.0 + 0.5 * step * dlog
+            if denominator > 0.5:
+                step /= denominator  # Halley
+            if abs(step) <= QUANTILE_RTOL * s:
+                return s + step
+            new = s + step
+        if not (new > lo and new < hi):
+            # A step past a bracket end lands on that end once (the root can sit within
+            # rounding of the bound, e.g. n = 1 at large a), else bisection.
+            if new <= lo and not tried_lo:
+                new, tried_lo = lo, True
+            elif new >= hi and not tried_hi:
+                new, tried_hi = hi, True
+            else:
+                new = 0.5 * (lo + hi)
+                if not (hi - lo > 4e-16 * hi):
+                    return new
+        s = new
+    return s
+
+
+# --------------------------------------------------------------------------- arrays
+@njit(**_JIT)
+def chi_sf_array(b: np.ndarray, a: np.ndarray, n: int) -> np.ndarray:
+    """:func:`chi_sf` over equal-length 1D arrays."""
+    out = np.empty(b.shape[0])
+    for i in range(b.shape[0]):
+        out[i] = chi_sf(b[i], a[i], n)
+    return out
+
+
+@njit(**_JIT)
+def chi_isf_array(eps: np.ndarray, a: np.ndarray, n: int) -> np.ndarray:
+    """:func:`chi_isf` over equal-length 1D arrays."""
+    out = np.empty(eps.shape[0])
+    for i in range(eps.shape[0]):
+        out[i] = chi_isf(eps[i], a[i], n)
+    return out
+
+
+# --------------------------------------------------------------------------- tube step
+@njit(**_JIT)
+def _distance(point: np.ndarray, mean: np.ndarray, j: int) -> float:
+    total = 0.0
+    for i in range(point.shape[0]):
+        d = point[i] - mean[j, i]
+        total += d * d
+    return math.sqrt(total)
+
+
+@njit(**_JIT)
+def _add_null_space(rate: np.ndarray, m: np.ndarray, goal: np.ndarray, weight: float) -> None:
+    """rate += weight·v, v ⟂ m with |v| = |m| (:func:`stt_drake.tube.null_space_direction`):
+    n = 2, m rotated by +90°; n ≥ 3, the part of the goal direction orthogonal to m, else of
+    e_{n−1}, else of e_0 (the first whose orthogonal part is not degenerate)."""
+    n = m.shape[0]
+    if n == 1:
+        return
+    if n == 2:
+        rate[0] -= weight * m[1]
+        rate[1] += weight * m[0]
+        return
+    norm_m = 0.0
+    for i in range(n):
+        norm_m += m[i] * m[i]
+    norm_m = math.sqrt(norm_m)
+    scale = norm_m if norm_m > 0.0 else 1.0
+    candidate = np.empty(n)
+    for which in range(3):
+        if which == 0:
+            size = 0.0
+            for i in range(n):
+                candidate[i] = goal[i]
+                size += goal[i] * goal[i]
+            size = math.sqrt(size)
+        else:
+            candidate[:] = 0.0
+            candidate[n - 1 if which == 1 else 0] = 1.0
+            size = 1.0
+        dot = 0.0
+        for i in range(n):
+            dot += candidate[i] * m[i] / scale
+        length = 0.0
+        for i in range(n):
+            o = candidate[i] - dot * m[i] / scale
+            length += o * o
+        length = math.sqrt(length)
+        if length > 1e-6 * max(size, 1e-300):
+            factor = weight * norm_m / length
+            for i in range(n):
+                rate[i] += factor * (candidate[i] - dot * m[i] / scale)
+            return
+
+
+#: Layout of the `constants` array of :func:`tube_step`: k1, r_min, r_max, ν, linear zone δ,
+#: prune_above, then the target η (n).
+TUBE_CONSTANTS = ("k1", "r_min", "r_max", "nu", "linear_zone", "prune_above")
+
+
+@njit(**_JIT)
+def tube_step(
+    center: np.ndarray,
+    mean: np.ndarray,
+    sigma: np.ndarray,
+    radius: np.ndarray,
+    epsilon: np.ndarray,
+    p_d: np.ndarray,
+    k2: np.ndarray,
+    k3: np.ndarray,
+    constants: np.ndarray,
+) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
+    """One tube-law evaluation (:meth:`stt_drake.tube.TubeLaw.evaluate`) in one pass.
+
+    Per obstacle j: q_j (eq. prob_q), d̂_j (eq. m_crv; the quantile is skipped where the
+    bound σ(a − Φ⁻¹(ε)) − r_o already exceeds `prune_above`, and that bound is returned),
+    θ_j, m_j, v_j; then ċ (eq. cen_dynamic) and the soft-min radius (eq. rad_sol).
+    `k2`, `k3` hold one gain per obstacle or a single one; `constants` is laid out as
+    :data:`TUBE_CONSTANTS` followed by η (few arguments: numba's dispatch costs per
+    argument).
+
+    Returns:
+        (ċ, r, q, d̂, θ).
+    """
+    k1 = constants[0]
+    r_min = constants[1]
+    r_max = constants[2]
+    nu = constants[3]
+    linear_zone = constants[4]
+    prune_above = constants[5]
+    target = constants[6:]
+    count, n = mean.shape
+    q = np.empty(count)
+    d_hat = np.empty(count)
+    theta = np.empty(count)
+    goal = np.empty(n)
+    rate = np.empty(n)
+    for i in range(n):
+        e = target[i] - center[i]
+        goal[i] = e
+        if linear_zone > 0.0 and abs(e) < linear_zone:
+            rate[i] = k1 * e * linear_zone ** (-2.0 / 3.0)
+        else:
+            rate[i] = k1 * np.cbrt(e)
+    m = np.empty(n)
+    for j in range(count):
+        s = sigma[j]
+        a = _distance(center, mean, j) / s
+        qj = chi_sf((radius[j] + r_min) / s, a, n)
+        q[j] = qj
+        eps = epsilon[j]
+        lower = s * max(a - ndtri(eps), 0.0) - radius[j]
+        if lower > prune_above:
+            d_hat[j] = lower
+        else:
+            d_hat[j] = s * chi_isf(eps, a, n) - radius[j]
+        if qj <= p_d[j]:
+            th = 1.0 / qj - 1.0 / p_d[j]
+            theta[j] = th
+            inv_gap = 1.0 / max(qj - eps, 1e-12)
+            for i in range(n):
+                m[i] = (center[i] - mean[j, i]) * inv_gap
+            gain2 = k2[j] if k2.shape[0] > 1 else k2[0]
+            gain3 = k3[j] if k3.shape[0] > 1 else k3[0]
+            for i in range(n):
+                rate[i] += gain2 * th * m[i]
+            if gain3 != 0.0:
+                _add_null_space(rate, m, goal, gain3 * th)
+        else:
+            theta[j] = 0.0
+    return rate, soft_min_radius(d_hat, r_max, nu), q, d_hat, theta
+
+
+@njit(**_JIT)
+def soft_min_radius(d_hat: np.ndarray, r_max: float, nu: float) -> float:
+    """r = −(1/ν) ln(e^{−ν r_max} + Σ_j e^{−ν d̂_j}) (eq. rad_sol), shifted by the minimum;
+    NaN if any d̂_j is NaN."""
+    smallest = r_max
+    for j in range(d_hat.shape[0]):
+        d = d_hat[j]
+        if math.isnan(d):
+            return math.nan
+        if d < smallest:
+            smallest = d
+    total = math.exp(-nu * (r_max - smallest))
+    for j in range(d_hat.shape[0]):
+        total += math.exp(-nu * (d_hat[j] - smallest))
+    return smallest - math.log(total) / nu
+
+
+@njit(**_JIT)
+def tube_step_packed(
+    center: np.ndarray, belief: np.ndarray, k2: np.ndarray, k3: np.ndarray, constants: np.ndarray
+) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`tube_step` on a belief port vector ([μ (n), σ, r_o, ε, p_d] per obstacle)."""
+    n = center.shape[0]
+    table = belief.reshape((-1, n + 4))
+    return tube_step(
+        center,
+        table[:, :n],
+        table[:, n],
+        table[:, n + 1],
+        table[:, n + 2],
+        table[:, n + 3],
+        k2,
+        k3,
+        constants,
+    )
+
+
+# --------------------------------------------------------------------------- invariants
+@njit(**_JIT)
+def invariant_margins(
+    output: np.ndarray,
+    center: np.ndarray,
+    tube_radius: float,
+    mean: np.ndarray,
+    sigma: np.ndarray,
+    radius: np.ndarray,
+    epsilon: np.ndarray,
+    r_min: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The margins of :func:`stt_drake.invariants.evaluate_invariants` in one pass.
+
+    Returns:
+        (margins (5,), P(‖y − O_j‖ ≥ r_o_j) (m,), P(‖c − O_j‖ ≥ r_o_j + r) (m,)).
+    """
+    count, n = mean.shape
+    output_q = np.empty(count)
+    tube_q = np.empty(count)
+    grown = 0.0 if tube_radius < 0.0 else tube_radius  # max(r, 0), NaN stays NaN
+    margins = np.empty(5)
+    offset = 0.0
+    for i in range(n):
+        offset += (output[i] - center[i]) ** 2
+    margins[0] = tube_radius - math.sqrt(offset)
+    worst_center = 1.0
+    worst_tube = 1.0
+    worst_output = 1.0
+    for j in range(count):
+        s = sigma[j]
+        eps = epsilon[j]
+        a_center = _distance(center, mean, j) / s
+        center_gap = chi_sf((radius[j] + r_min) / s, a_center, n) - eps
+        tq = chi_sf((radius[j] + grown) / s, a_center, n)
+        oq = chi_sf(radius[j] / s, _distance(output, mean, j) / s, n)
+        tube_q[j] = tq
+        output_q[j] = oq
+        worst_center = _nan_min(worst_center, center_gap)
+        worst_tube = _nan_min(worst_tube, tq - eps)
+        worst_output = _nan_min(worst_output, oq - eps)
+    margins[1] = worst_center
+    margins[2] = worst_tube
+    margins[3] = worst_output
+    margins[4] = tube_radius
+    return margins, output_q, tube_q
+
+
+@njit(**_JIT)
+def invariant_margins_packed(
+    output: np.ndarray, tube: np.ndarray, belief: np.ndarray, r_min: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`invariant_margins` on port vectors: tube = [c, r], belief as in
+    :func:`tube_step_packed`."""
+    n = output.shape[0]
+    table = belief.reshape((-1, n + 4))
+    return invariant_margins(
+        output,
+        tube[:n],
+        tube[n],
+        table[:, :n],
+        table[:, n],
+        table[:, n + 1],
+        table[:, n + 2],
+        r_min,
+    )
+
+
+@njit(**_JIT)
+def _nan_min(x: float, y: float) -> float:
+    """min like numpy's: NaN wins."""
+    if math.isnan(x) or math.isnan(y):
+        return math.nan
+    return y if y < x else x
+
+
+# --------------------------------------------------------------------------- belief
+@njit(**_JIT)
+def belief_table(
+    template: np.ndarray,
+    t: float,
+    oscillating: np.ndarray,
+    center: np.ndarray,
+    amplitude: np.ndarray,
+    angular_frequency: np.ndarray,
+    phase: np.ndarray,
+    moving: np.ndarray,
+    start: np.ndarray,
+    velocity: np.ndarray,
+) -> np.ndarray:
+    """The belief port vector at time t (:class:`stt_drake.systems.belief_source.
+    ObstacleBeliefSource`): a copy of the (m, n + 4) `template`, with the means of the
+    `oscillating` rows set to center + amplitude·sin(ω t + phase) and those of the `moving`
+    rows to start + t·velocity (the arithmetic of :mod:`stt_drake.motion`)."""
+    table = template.copy()
+    n = center.shape[1]
+    for k in range(oscillating.shape[0]):
+        j = oscillating[k]
+        for i in range(n):
+            angle = angular_frequency[k] * t + phase[k, i]
+            table[j, i] = center[k, i] + amplitude[k, i] * math.sin(angle)
+    for k in range(moving.shape[0]):
+        j = moving[k]
+        for i in range(n):
+            table[j, i] = start[k, i] + t * velocity[k, i]
+    return table.reshape(-1)
+
+
+# --------------------------------------------------------------------------- controller
+@njit(**_JIT)
+def _rho(e: float, saturation: float) -> float:
+    """ρ = ln((1 + e)/(1 − e)) = 2 atanh(e), e clipped to ±saturation."""
+    return 2.0 * math.atanh(min(max(e, -saturation), saturation))
+
+
+@njit(**_JIT)
+def funnel_control(
+    t: float,
+    states: np.ndarray,
+    center: np.ndarray,
+    radius: float,
+    kappa: np.ndarray,
+    funnel_start: np.ndarray,
+    funnel_end: np.ndarray,
+    funnel_rate: np.ndarray,
+    saturation: float,
+) -> tuple[np.ndarray, np.ndarray, bool]:
+    """The funnel law of Sec. 5 (:meth:`stt_drake.control.FunnelController.evaluate`).
+
+    Stage 1: e₁ = ‖x₁ − c‖/r, r₂ = −κ₁ ρ(e₁)(x₁ − c) (eq. Control_ras a). Stage k ≥ 2:
+    γ = (p − q)e^{−μt} + q, e_k = (x_k − r_k)/γ, ξ = 4/(γ(1 − e_k²)), r_{k+1} = −κ_k ξ ρ(e_k)
+    (eq. stage k). `states` is [x_1; …; x_N] flat; the funnel arrays are (N − 1, n).
+
+    Returns:
+        (u = r_{N+1} (n,), normalised errors [e₁, e₂ (n), …, e_N (n)] before saturation,
+        whether t, r, every state and the centre are finite).
+    """
+    n = center.shape[0]
+    finite = math.isfinite(t) and math.isfinite(radius)
+    for i in range(states.shape[0]):
+        finite = finite and math.isfinite(states[i])
+    for i in range(n):
+        finite = finite and math.isfinite(center[i])
+    stages = kappa.shape[0]
+    errors = np.empty(1 + (stages - 1) * n)
+    reference = np.empty(n)
+    distance = 0.0
+    for i in range(n):
+        distance += (states[i] - center[i]) ** 2
+    distance = math.sqrt(distance)
+    e1 = distance / radius if radius > 0.0 else math.inf
+    errors[0] = e1
+    gain = -kappa[0] * _rho(e1, saturation)
+    for i in range(n):
+        reference[i] = gain * (states[i] - center[i])
+    for k in range(1, stages):
+        for i in range(n):
+            start = funnel_start[k - 1, i]
+            end = funnel_end[k - 1, i]
+            gamma = (start - end) * math.exp(-funnel_rate[k - 1, i] * t) + end
+            e = (states[k * n + i] - reference[i]) / gamma
+            errors[1 + (k - 1) * n + i] = e
+            clipped = min(max(e, -saturation), saturation)
+            xi = 4.0 / (gamma * (1.0 - clipped * clipped))
+            reference[i] = -kappa[k] * xi * _rho(e, saturation)
+    return reference, errors, finite
+
+
+@njit(**_JIT)
+def funnel_control_packed(
+    t: float,
+    states: np.ndarray,
+    tube: np.ndarray,
+    kappa: np.ndarray,
+    funnel_start: np.ndarray,
+    funnel_end: np.ndarray,
+    funnel_rate: np.ndarray,
+    saturation: float,
+) -> tuple[np.ndarray, np.ndarray, bool]:
+    """:func:`funnel_control` with the tube as its port vector [c, r]."""
+    n = tube.shape[0] - 1
+    return funnel_control(
+        t, states, tube[:n], tube[n], kappa, funnel_start, funnel_end, funnel_rate, saturation
+    )
