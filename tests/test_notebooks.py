@@ -21,6 +21,8 @@ def test_the_case_study_notebooks_exist():
         "00_build_your_own_diagram.ipynb",
         "01_omni_hardware_cases.ipynb",
         "02_cluttered_2d.ipynb",
+        "03_uav.ipynb",
+        "04_franka.ipynb",
     } <= names
 
 
