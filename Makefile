@@ -20,9 +20,12 @@ demo: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check .
 
+# Drake may use the network only for Meshcat (localhost) and to *register* its package map:
+# with "meshcat" alone, constructing any multibody Parser fails offline (checked here), and
+# no test may download anything (a `package://drake_models` model would fail to load).
 test: $(STAMP)
 	$(BIN)/ruff check .
-	DRAKE_ALLOW_NETWORK=meshcat MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist loadfile
+	DRAKE_ALLOW_NETWORK=meshcat:package_map MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist loadfile
 
 clean:
 	rm -rf $(VENV) results .pytest_cache .ruff_cache .hypothesis
