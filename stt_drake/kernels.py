@@ -591,7 +591,9 @@ def soft_min_radius(d_hat: np.ndarray, r_max: float, nu: float) -> float:
             smallest = d
     total = math.exp(-nu * (r_max - smallest))
     for j in range(d_hat.shape[0]):
-        total += math.exp(-nu * (d_hat[j] - smallest))
+        exponent = nu * (d_hat[j] - smallest)
+        if exponent < 746.0:  # e^{−746} is 0 in double precision: skipping it is exact
+            total += math.exp(-exponent)
     return smallest - math.log(total) / nu
 
 
