@@ -89,6 +89,15 @@ def _draw_robot(meshcat: Meshcat, dimension: int, body_radius: float) -> None:
         meshcat.SetObject(f"{_ROOT}/robot/body", Cylinder(body_radius, 0.1), color)
 
 
+def _frame_camera(meshcat: Meshcat, run: Any) -> None:
+    """Aim the camera at the middle of start, target and path, from above and to the side,
+    far enough to see all of them."""
+    points = np.vstack([_lift(run.output), _lift(run.start[None, :]), _lift(run.target[None, :])])
+    low, high = points.min(axis=0), points.max(axis=0)
+    middle, span = 0.5 * (low + high), float(np.max(high - low)) + 1.0
+    meshcat.SetCameraPose(middle + np.array([0.0, -0.9 * span, 1.1 * span]), middle)
+
+
 def write_meshcat_replay(
     log: Mapping[str, Any],
     path: str | Path,
@@ -196,6 +205,7 @@ def write_meshcat_replay(
             for name, size in animated.items():
                 animation.SetProperty(frame, name, "scale", [float(size[frame])] * 3)
         meshcat.SetAnimation(animation)
+        _frame_camera(meshcat, run)
         html = meshcat.StaticHtml()
     finally:
         del meshcat
