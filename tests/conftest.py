@@ -12,6 +12,16 @@ from stt_drake.scenario import load_scenario
 
 DIAGRAMS = Path(__file__).resolve().parent.parent / "diagrams"
 
+#: The guarantee keys of the `metrics.json` contract (issue text), written out here rather
+#: than imported from the code under test.
+INVARIANT_KEYS = {
+    "output_in_tube",
+    "center_avoid_probability",
+    "tube_avoid_probability",
+    "output_avoid_probability",
+    "radius_positive",
+}
+
 
 @pytest.fixture(scope="session")
 def run_scenario():

@@ -12,18 +12,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import INVARIANT_KEYS
 
 from stt_drake.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent
 CASE1 = ROOT / "diagrams" / "omni_hardware_case1.yaml"
-INVARIANT_KEYS = {
-    "output_in_tube",
-    "center_avoid_probability",
-    "tube_avoid_probability",
-    "output_avoid_probability",
-    "radius_positive",
-}
 
 
 def _console_script() -> str:

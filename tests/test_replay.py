@@ -18,6 +18,7 @@ from pathlib import Path
 import msgpack
 import numpy as np
 import pytest
+from conftest import INVARIANT_KEYS
 from test_plotting import make_log
 
 from stt_drake.belief import ObstacleBelief
@@ -48,13 +49,6 @@ OBSTACLE_KEYS = {
     "radius",
     "epsilon",
     "min_output_avoid_probability",
-}
-INVARIANT_KEYS = {
-    "output_in_tube",
-    "center_avoid_probability",
-    "tube_avoid_probability",
-    "output_avoid_probability",
-    "radius_positive",
 }
 
 
