@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint install clean
+.PHONY: demo test lint install clean system-packages
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -23,9 +23,17 @@ lint: $(STAMP)
 # Drake may use the network only for Meshcat (localhost) and to *register* its package map:
 # with "meshcat" alone, constructing any multibody Parser fails offline (checked here), and
 # no test may download anything (a `package://drake_models` model would fail to load).
-test: $(STAMP)
+test: $(STAMP) system-packages
 	$(BIN)/ruff check .
 	DRAKE_ALLOW_NETWORK=meshcat:package_map MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist loadfile
+
+# Graphviz (`stt-drake diagram`) and headless Chromium (the replay test) are Debian packages.
+system-packages:
+	@if ! command -v dot >/dev/null 2>&1 || ! command -v chromium >/dev/null 2>&1; then \
+	  echo "installing Debian packages graphviz and chromium for the diagram and replay tests"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+	    --no-install-recommends graphviz chromium >/dev/null; \
+	fi
 
 clean:
 	rm -rf $(VENV) results .pytest_cache .ruff_cache .hypothesis
