@@ -32,7 +32,7 @@ system-packages:
 	@if ! command -v dot >/dev/null 2>&1 || ! command -v chromium >/dev/null 2>&1; then \
 	  echo "installing Debian packages graphviz and chromium for the diagram and replay tests"; \
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
-	    --no-install-recommends graphviz chromium >/dev/null; \
+	    graphviz chromium >/dev/null; \
 	fi
 
 clean:
