@@ -49,10 +49,12 @@ class RandomObstacles:
     (per axis) and frequency are uniform in their [low, high] ranges. A draw is kept only
     if its whole path stays clear of the start and the target with probability ≥ p_d
     (checked with the buffered radius r_o + r_min; Assumption 3.1 and the initial
-    condition of Def. 2.2).
+    condition of Def. 2.2). `count_range` = [low, high], when given instead of `count`,
+    draws the number of obstacles uniformly from those integers (randomisation campaigns).
     """
 
     count: int = 0
+    count_range: list[int] = field(default_factory=list)
     seed: int = 0
     region_min: list[float] = field(default_factory=list)
     region_max: list[float] = field(default_factory=list)
@@ -811,10 +813,15 @@ def expand_random_obstacles(scenario: Scenario) -> None:
     Reproducible: the draws depend only on (random_obstacles.seed, scenario seed).
     """
     spec = scenario.random_obstacles
-    if spec is None or spec.count == 0:
+    if spec is None or (spec.count == 0 and not spec.count_range):
         return
     n, path = scenario.dimension, "scenario.random_obstacles"
-    _require(spec.count > 0, f"{path}.count", "must be ≥ 0", spec.count)
+    _require(spec.count > 0 or bool(spec.count_range), f"{path}.count", "must be ≥ 0", spec.count)
+    if spec.count_range:
+        _require(
+            spec.count == 0, f"{path}.count", "give count or count_range, not both", spec.count
+        )
+        _require_range(spec.count_range, f"{path}.count_range", 1, math.inf)
     _require_vector(spec.region_min, n, f"{path}.region_min")
     _require_vector(spec.region_max, n, f"{path}.region_max")
     _require(
@@ -840,11 +847,16 @@ def expand_random_obstacles(scenario: Scenario) -> None:
     _require_range(spec.amplitude_range, f"{path}.amplitude_range", 0.0, math.inf)
     _require_range(spec.frequency_range_hz, f"{path}.frequency_range_hz", 0.0, math.inf)
     rng = np.random.default_rng([spec.seed, scenario.seed])
+    count = (
+        int(rng.integers(spec.count_range[0], spec.count_range[1] + 1))
+        if spec.count_range
+        else spec.count
+    )
     checkpoints = np.linspace(0.0, scenario.duration, 200)
     anchors = np.array([scenario.start, scenario.target], dtype=float)
     accepted: list[Obstacle] = []
-    for _attempt in range(1000 * spec.count):
-        if len(accepted) == spec.count:
+    for _attempt in range(1000 * count):
+        if len(accepted) == count:
             break
         candidate = Obstacle(
             motion=Oscillation(
@@ -874,9 +886,9 @@ def expand_random_obstacles(scenario: Scenario) -> None:
         if clear:
             accepted.append(candidate)
     _require(
-        len(accepted) == spec.count,
-        f"{path}.count",
+        len(accepted) == count,
+        f"{path}.count_range" if spec.count_range else f"{path}.count",
         "could not place that many obstacles clear of start and target; enlarge the region",
-        spec.count,
+        count,
     )
     scenario.obstacles = scenario.obstacles + accepted

@@ -905,3 +905,24 @@ def test_infinite_duration_is_rejected():
 def test_reversed_random_region_is_rejected():
     text = scenario_text(_random(region_min=[3.0, 3.0], region_max=[1.0, 4.0]))
     assert_rejected(text, "scenario.random_obstacles.region_max", "region_min")
+
+
+def test_count_range_draws_the_number_of_obstacles_per_seed():
+    counts = {
+        seed: len(_random_scenario(seed, count=0, count_range=[1, 4]).obstacles)
+        for seed in range(12)
+    }
+    assert all(1 <= c <= 4 for c in counts.values())
+    assert len(set(counts.values())) > 1  # the count really varies with the seed
+    again = _random_scenario(5, count=0, count_range=[1, 4])
+    assert len(again.obstacles) == counts[5]
+
+
+def test_count_and_count_range_together_are_rejected():
+    text = scenario_text(_random(count=2, count_range=[1, 3]))
+    assert_rejected(text, "scenario.random_obstacles.count", "not both")
+
+
+def test_reversed_count_range_is_rejected():
+    text = scenario_text(_random(count=0, count_range=[3, 1]))
+    assert_rejected(text, "scenario.random_obstacles.count_range", "[low, high]")
