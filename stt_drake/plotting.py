@@ -669,15 +669,21 @@ def _plot_margin(ax: Any, t: np.ndarray, margin: np.ndarray) -> None:
     )
     worst = int(np.argmin(np.where(finite, margin, np.inf)))
     ax.plot(t[worst], margin[worst], "o", ms=4, color=PALETTE["violation"])
+    _corner_note(ax, f"min {margin[worst]:.3g} at t = {t[worst]:.1f} s", height=0.05)
+
+
+def _corner_note(ax: Any, text: str, height: float, zorder: float | None = None) -> None:
+    """A small boxed note in the lower-right corner of `ax` (axes coordinates)."""
     ax.text(
         0.98,
-        0.05,
-        f"min {margin[worst]:.3g} at t = {t[worst]:.1f} s",
+        height,
+        text,
         transform=ax.transAxes,
         ha="right",
         va="bottom",
         fontsize=7,
         bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "none", "alpha": 0.8},
+        zorder=zorder,
     )
 
 
@@ -727,16 +733,8 @@ def _plot_obstacle_margins(fig: Figure, ax: Any, run: _Run) -> None:
         ax.set_ylim(bottom - 0.08 * span, top + 0.05 * span)
         hidden = int(np.sum(lowest > top + 0.05 * span))
         if hidden:
-            ax.text(
-                0.98,
-                0.02,
-                f"{hidden} of {run.count} obstacles stay above this axis",
-                transform=ax.transAxes,
-                ha="right",
-                va="bottom",
-                fontsize=7,
-                bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "none", "alpha": 0.8},
-                zorder=5,
+            _corner_note(
+                ax, f"{hidden} of {run.count} obstacles stay above this axis", 0.02, zorder=5
             )
     if few:
         ax.legend(
