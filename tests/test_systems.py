@@ -11,6 +11,7 @@ P(‖Z‖ ≥ R) = exp(−R²/2σ²) of a 2D Gaussian centred on the point).
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
@@ -409,8 +410,8 @@ THIN_TARGET = np.array([4.0, 0.0])
 THIN_R_MIN = 0.21
 
 
-def thin_layer_law(linear_zone: float) -> TubeLaw:
-    return TubeLaw(
+def thin_layer_law(linear_zone: float, law_class: type[TubeLaw] = TubeLaw) -> TubeLaw:
+    return law_class(
         target=THIN_TARGET,
         k1=0.7,
         k2=0.4,
@@ -471,7 +472,7 @@ def test_thin_layer_continuous_error_controlled():
         accuracy=1e-6,
         use_error_control=True,
     )
-    law = RecordingLaw(thin_layer_law(linear_zone_for_step(0.7, 0.01)))
+    law = thin_layer_law(linear_zone_for_step(0.7, 0.01), RecordingLaw)
     _, _, records = run_thin_layer(law, None, config)
     assert_thin_layer_safe_and_reached(records)
     # Error control keeps even the stage points (rejected trial steps included) out of
@@ -487,25 +488,24 @@ def test_thin_layer_fixed_rate_100hz():
     assert_thin_layer_safe_and_reached(records)
 
 
-class RecordingLaw:
-    """Wraps a TubeLaw and records q − ε (from the probability kernel) at every centre the
-    integrator evaluates the law at, stage points included — the step-end monitor only
-    sees accepted steps."""
+@dataclass(frozen=True)
+class RecordingLaw(TubeLaw):
+    """A TubeLaw that records q − ε (from the probability kernel) at every centre the
+    integrator evaluates it at, stage points included — the step-end monitor only sees
+    accepted steps."""
 
-    def __init__(self, law: TubeLaw) -> None:
-        self.law = law
-        self.gaps: list[float] = []
+    gaps: list[float] = field(default_factory=list)
 
-    def evaluate(self, center, belief):
+    def evaluate_packed(self, center, belief_vector, prune=True):
         self.gaps.append(thin_q_gap(center))
-        return self.law.evaluate(center, belief)
+        return super().evaluate_packed(center, belief_vector, prune)
 
 
 def test_thin_layer_trap_is_real_for_fixed_step_explicit_integration():
     config = SimulatorConfig(
         integration_scheme="runge_kutta2", max_step_size=0.01, use_error_control=False
     )
-    law = RecordingLaw(thin_layer_law(linear_zone_for_step(0.7, 0.01)))
+    law = thin_layer_law(linear_zone_for_step(0.7, 0.01), RecordingLaw)
     raised = None
     records = np.empty((0, 5))
     try:

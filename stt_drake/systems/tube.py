@@ -131,10 +131,7 @@ class SpatiotemporalTube(LeafSystem):
         if key == self._last_key:
             value.set_value(self._last_evaluation)
             return
-        if isinstance(law, TubeLaw):
-            evaluation = law.evaluate_packed(center, belief)
-        else:  # any object with TubeLaw.evaluate's signature
-            evaluation = law.evaluate(center, ObstacleBelief.from_vector(belief, self._dimension))
+        evaluation = law.evaluate_packed(center, belief)
         tube = np.empty(self._dimension + 1)  # the `tube` port value, [c, r]
         tube[:-1] = center
         tube[-1] = evaluation.radius
