@@ -18,9 +18,14 @@ import numpy as np
 _SCALAR_FIELDS = 4
 
 
+def record_size(dimension: int) -> int:
+    """Length of one obstacle's record in the belief vector: mean (n) + 4 scalars."""
+    return dimension + _SCALAR_FIELDS
+
+
 def belief_size(count: int, dimension: int) -> int:
     """Length of the belief vector for `count` obstacles in R^dimension."""
-    return count * (dimension + _SCALAR_FIELDS)
+    return count * record_size(dimension)
 
 
 @dataclass(frozen=True)
@@ -57,7 +62,7 @@ class ObstacleBelief:
     @classmethod
     def from_vector(cls, vector: np.ndarray, dimension: int) -> ObstacleBelief:
         """Unpack a port vector (views, no copies)."""
-        record = dimension + _SCALAR_FIELDS
+        record = record_size(dimension)
         vector = np.asarray(vector, dtype=float)
         if vector.size % record:
             raise ValueError(

@@ -60,10 +60,24 @@ TARGETS = {
 #: Obstacle fields with the density, σ and ε ranges of the shipped cluttered scenarios:
 #: omni_cluttered_50 (50 obstacles in 28 m × 28 m) and uav_cluttered (40 in a 10 m cube).
 FIELDS = {
-    2: {"side": 28.0, "count": 50, "sigma": (0.1, 1.0), "epsilon": (0.7, 0.99), "r_min": 0.1,
-        "r_max": 0.8, "k": (0.35, 0.4, 0.8)},
-    3: {"side": 10.0, "count": 40, "sigma": (0.05, 0.45), "epsilon": (0.7, 0.95),
-        "r_min": 0.3, "r_max": 0.9, "k": (0.31, 0.03, 0.03)},
+    2: {
+        "side": 28.0,
+        "count": 50,
+        "sigma": (0.1, 1.0),
+        "epsilon": (0.7, 0.99),
+        "r_min": 0.1,
+        "r_max": 0.8,
+        "k": (0.35, 0.4, 0.8),
+    },
+    3: {
+        "side": 10.0,
+        "count": 40,
+        "sigma": (0.05, 0.45),
+        "epsilon": (0.7, 0.95),
+        "r_min": 0.3,
+        "r_max": 0.9,
+        "k": (0.31, 0.03, 0.03),
+    },
 }
 OBSTACLE_RADIUS, P_D = 0.4, 0.9999
 
@@ -141,8 +155,7 @@ def baseline_tube_step(
         threshold = ((belief.radius[j] + law.r_min) / belief.sigma[j]) ** 2
         q[j] = 1.0 - ncx2.cdf(threshold, n, lam)
         d_hat[j] = (
-            belief.sigma[j] * np.sqrt(ncx2.ppf(1.0 - belief.epsilon[j], n, lam))
-            - belief.radius[j]
+            belief.sigma[j] * np.sqrt(ncx2.ppf(1.0 - belief.epsilon[j], n, lam)) - belief.radius[j]
         )
         if q[j] <= belief.p_d[j]:
             theta[j] = 1.0 / q[j] - 1.0 / belief.p_d[j]
@@ -259,9 +272,7 @@ def bench_controller(repeats: int) -> dict[str, Any]:
     return results
 
 
-def bench_closed_loop(
-    name: str, repeats: int, duration: float | None = None
-) -> dict[str, Any]:
+def bench_closed_loop(name: str, repeats: int, duration: float | None = None) -> dict[str, Any]:
     """Simulate diagrams/<name>.yaml with the invariant monitor on; real-time factors.
 
     Returns ``{"available": False, ...}`` when the scenario file does not exist.
@@ -303,6 +314,7 @@ def bench_closed_loop(
                 "holds": tracker.holds,
             }
         )
+
     def median(key: str) -> float:
         return statistics.median(run[key] for run in runs)
 
@@ -355,12 +367,23 @@ def profile_closed_loop(name: str, duration: float = 10.0, top: int = 25) -> dic
     for (filename, line, function), entry in stats.stats.items():  # type: ignore[attr-defined]
         calls, tottime, cumtime = entry[1], entry[2], entry[3]
         where = f"{Path(filename).name}:{line}" if line else filename
-        rows.append({"function": f"{function} ({where})", "calls": calls,
-                     "own_share": tottime / total if total else 0.0, "own_s": tottime,
-                     "cumulative_s": cumtime})
+        rows.append(
+            {
+                "function": f"{function} ({where})",
+                "calls": calls,
+                "own_share": tottime / total if total else 0.0,
+                "own_s": tottime,
+                "cumulative_s": cumtime,
+            }
+        )
     rows.sort(key=lambda row: -row["own_s"])
-    return {"available": True, "scenario": name, "sim_time_s": duration, "total_s": total,
-            "top": rows[:top]}
+    return {
+        "available": True,
+        "scenario": name,
+        "sim_time_s": duration,
+        "total_s": total,
+        "top": rows[:top],
+    }
 
 
 def scaling_plot(tube: dict[str, Any], counts: tuple[int, ...], path: Path) -> Path:
@@ -375,14 +398,17 @@ def scaling_plot(tube: dict[str, Any], counts: tuple[int, ...], path: Path) -> P
     for dimension, color in styles.items():
         for field, marker in (("typical", "o"), ("worst", "s")):
             kernel = [tube[f"{field}/{dimension}d/{c}"]["kernel_us"]["median"] for c in counts]
-            axis.loglog(counts, kernel, marker=marker, color=color,
-                        label=f"compiled, {dimension}D, {field}")
+            axis.loglog(
+                counts, kernel, marker=marker, color=color, label=f"compiled, {dimension}D, {field}"
+            )
         baseline = [tube[f"typical/{dimension}d/{c}"]["baseline_us"]["median"] for c in counts]
-        axis.loglog(counts, baseline, ls="--", marker="x", color=color,
-                    label=f"scipy loop, {dimension}D")
+        axis.loglog(
+            counts, baseline, ls="--", marker="x", color=color, label=f"scipy loop, {dimension}D"
+        )
     reference = tube[f"typical/2d/{counts[0]}"]["kernel_us"]["median"]
-    axis.loglog(counts, [reference * c / counts[0] for c in counts], ls=":", color="gray",
-                label="∝ count")
+    axis.loglog(
+        counts, [reference * c / counts[0] for c in counts], ls=":", color="gray", label="∝ count"
+    )
     axis.set_xlabel("obstacles")
     axis.set_ylabel("one tube step (µs, median)")
     axis.set_title("Tube step cost against obstacle count")
@@ -412,8 +438,9 @@ def run_benchmark(
     met), ``details`` (spreads and everything else), ``machine``, ``plot``.
     """
     if not backend.using_compiled():
-        print("stt-drake bench: STT_DRAKE_PURE_NUMPY is set, timing the numpy path",
-              file=sys.stderr)
+        print(
+            "stt-drake bench: STT_DRAKE_PURE_NUMPY is set, timing the numpy path", file=sys.stderr
+        )
     load_before = os.getloadavg()
     tube = bench_tube_steps(counts, repeats)
     controller = bench_controller(repeats)
@@ -484,23 +511,27 @@ def _targets(result: dict[str, Any], counts: tuple[int, ...]) -> dict[str, Any]:
         for n in ("2d", "3d"):
             value = result["tube_step_us"][n]["50"]
             targets[f"tube_step_50_{n}_us"] = {
-                "value": value, "target": f"<= {TARGETS['tube_step_50_us']}",
+                "value": value,
+                "target": f"<= {TARGETS['tube_step_50_us']}",
                 "met": value <= TARGETS["tube_step_50_us"],
             }
             speedup = result["speedup_vs_baseline"][n]["50"]
             targets[f"speedup_50_{n}"] = {
-                "value": speedup, "target": f">= {TARGETS['speedup_50']}",
+                "value": speedup,
+                "target": f">= {TARGETS['speedup_50']}",
                 "met": speedup >= TARGETS["speedup_50"],
             }
     for name, value in result["controller_us"].items():
         targets[f"controller_{name}_us"] = {
-            "value": value, "target": f"<= {TARGETS['controller_us']}",
+            "value": value,
+            "target": f"<= {TARGETS['controller_us']}",
             "met": value <= TARGETS["controller_us"],
         }
     factor = result["realtime_factor"].get("omni_cluttered_50")
     if isinstance(factor, float):
         targets["omni_cluttered_50_realtime_factor"] = {
-            "value": factor, "target": f">= {TARGETS['omni_cluttered_50_realtime_factor']}",
+            "value": factor,
+            "target": f">= {TARGETS['omni_cluttered_50_realtime_factor']}",
             "met": factor >= TARGETS["omni_cluttered_50_realtime_factor"],
         }
     return targets
@@ -525,8 +556,10 @@ def format_table(result: dict[str, Any]) -> str:
     tube = result["details"]["tube_step"]
     lines.append("")
     lines.append("1. one tube step (q, θ, m, v, d̂, r, ċ for all obstacles), µs, median [IQR]")
-    header = (f"  {'field':<8}{'n':>3}{'count':>7}{'compiled':>11}{'IQR':>7}{'CPU':>8}"
-              f"{'per obst.':>10}{'scipy loop':>12}{'speedup':>9}{'pruned':>8}{'active':>7}")
+    header = (
+        f"  {'field':<8}{'n':>3}{'count':>7}{'compiled':>11}{'IQR':>7}{'CPU':>8}"
+        f"{'per obst.':>10}{'scipy loop':>12}{'speedup':>9}{'pruned':>8}{'active':>7}"
+    )
     lines.append(header)
     for key, entry in tube.items():
         field, n, count = key.split("/")
@@ -571,9 +604,7 @@ def format_table(result: dict[str, Any]) -> str:
             f"({profile['total_s']:.2f} s), functions by own time"
         )
         for row in profile["top"]:
-            lines.append(
-                f"  {100 * row['own_share']:5.1f}%  {row['calls']:>8}  {row['function']}"
-            )
+            lines.append(f"  {100 * row['own_share']:5.1f}%  {row['calls']:>8}  {row['function']}")
     lines.append("")
     lines.append("targets (this machine):")
     for name, target in result["targets"].items():
@@ -609,9 +640,7 @@ def add_parser(commands: Any) -> None:
         default=list(COUNTS),
         help=f"obstacle counts (default {' '.join(map(str, COUNTS))})",
     )
-    parser.add_argument(
-        "--out", type=Path, default=Path("results/bench"), help="folder of the PNG"
-    )
+    parser.add_argument("--out", type=Path, default=Path("results/bench"), help="folder of the PNG")
     parser.add_argument(
         "--profile",
         action="store_true",
@@ -624,8 +653,9 @@ def _run(args: argparse.Namespace) -> int:
     from stt_drake.cli import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS
 
     if args.repeats < 1 or args.loop_repeats < 1 or min(args.counts) < 1:
-        print("stt-drake bench: --repeats, --loop-repeats and --counts must be ≥ 1",
-              file=sys.stderr)
+        print(
+            "stt-drake bench: --repeats, --loop-repeats and --counts must be ≥ 1", file=sys.stderr
+        )
         return EXIT_BAD_INPUT
     result = run_benchmark(
         repeats=args.repeats,

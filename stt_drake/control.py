@@ -119,8 +119,10 @@ class FunnelController:
             shape = (len(self.funnels), dimension)
 
             def stacked(name: str) -> np.ndarray:
-                rows = [np.broadcast_to(np.asarray(getattr(f, name), float), shape[1:])
-                        for f in self.funnels]
+                rows = [
+                    np.broadcast_to(np.asarray(getattr(f, name), float), shape[1:])
+                    for f in self.funnels
+                ]
                 return np.array(rows, dtype=float).reshape(shape)
 
             arrays = (

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stt_drake import backend
-from stt_drake.belief import ObstacleBelief
+from stt_drake.belief import ObstacleBelief, record_size
 from stt_drake.probability import COMPILED_DIMENSIONS, avoid_probability
 
 INVARIANT_NAMES = (
@@ -97,7 +97,7 @@ def evaluate_invariants_packed(
     if (
         kernels is None
         or dimension not in COMPILED_DIMENSIONS
-        or len(belief_vector) % (dimension + 4)  # from_vector names the problem
+        or len(belief_vector) % record_size(dimension)  # from_vector names the problem
     ):
         belief = ObstacleBelief.from_vector(belief_vector, dimension)
         return evaluate_invariants(output, tube[:-1], tube[-1], belief, r_min)

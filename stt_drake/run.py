@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 
+from stt_drake.belief import record_size
 from stt_drake.builders import SttDiagram, build_diagram
 from stt_drake.invariants import HOLDS_TOLERANCE, InvariantTracker, tube_reach_time
 from stt_drake.manipulator import summarize_arm
@@ -73,8 +74,8 @@ def collect_log(built: SttDiagram, scenario: Scenario, root_context: object) -> 
 def obstacle_report(log: dict[str, np.ndarray], scenario: Scenario) -> list[dict[str, Any]]:
     """Per obstacle: the closest approach of y to its mean, and its σ and ε."""
     n = scenario.dimension
-    record = n + 4
-    means = log["belief"].reshape(len(log["t"]), -1, record)[:, :, :n]
+    table = log["belief"].reshape(len(log["t"]), -1, record_size(n))
+    means, sigmas = table[:, :, :n], table[:, :, n]
     distance = np.linalg.norm(log["output"][:, None, :] - means, axis=2)
     report = []
     for j, obstacle in enumerate(scenario.obstacles):
@@ -84,7 +85,7 @@ def obstacle_report(log: dict[str, np.ndarray], scenario: Scenario) -> list[dict
                 "index": j,
                 "min_distance_to_mean": float(distance[k, j]),
                 "t_min_distance": float(log["t"][k]),
-                "sigma": float(log["belief"][k, j * record + n]),
+                "sigma": float(sigmas[k, j]),
                 "radius": obstacle.radius,
                 "epsilon": obstacle.epsilon,
                 "min_output_avoid_probability": float(

@@ -18,7 +18,7 @@ from functools import cached_property
 import numpy as np
 
 from stt_drake import backend
-from stt_drake.belief import ObstacleBelief
+from stt_drake.belief import ObstacleBelief, record_size
 from stt_drake.probability import (
     COMPILED_DIMENSIONS,
     PRUNE_HEADROOM_NU,
@@ -224,11 +224,11 @@ class TubeLaw:
         if (
             kernels is None
             or dimension not in COMPILED_DIMENSIONS
-            or len(belief_vector) % (dimension + 4)  # from_vector names the problem
+            or len(belief_vector) % record_size(dimension)  # from_vector names the problem
         ):
             belief = ObstacleBelief.from_vector(belief_vector, dimension)
             return self._evaluate_numpy(center, belief, prune)
-        k2, k3, pruned, unpruned = self._gains_for(len(belief_vector) // (dimension + 4))
+        k2, k3, pruned, unpruned = self._gains_for(len(belief_vector) // record_size(dimension))
         return TubeEvaluation(
             *kernels.tube_step_packed(
                 np.asarray(center, dtype=float),

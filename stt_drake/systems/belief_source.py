@@ -6,7 +6,7 @@ import numpy as np
 from pydrake.systems.framework import BasicVector, Context, LeafSystem
 
 from stt_drake import backend
-from stt_drake.belief import belief_size
+from stt_drake.belief import belief_size, record_size
 from stt_drake.motion import ConstantVelocity, Oscillation
 from stt_drake.scenario import Obstacle, obstacle_belief, obstacle_sigma
 
@@ -33,7 +33,7 @@ class ObstacleBeliefSource(LeafSystem):
         self._dimension = dimension
         count = len(self._obstacles)
         self._template = obstacle_belief(self._obstacles, dimension, 0.0).to_vector()
-        self._template = self._template.reshape(count, dimension + 4)
+        self._template = self._template.reshape(count, record_size(dimension))
 
         def kind(motion_type: type) -> list[int]:
             return [j for j, o in enumerate(self._obstacles) if type(o.motion) is motion_type]
@@ -57,9 +57,7 @@ class ObstacleBeliefSource(LeafSystem):
         self._velocity = np.array([m.velocity for m in motions], dtype=float).reshape(shape)
         vectorised = set(oscillating) | set(moving)
         self._other = [j for j in range(count) if j not in vectorised]
-        self._scheduled = [
-            j for j, o in enumerate(self._obstacles) if o.sigma_schedule is not None
-        ]
+        self._scheduled = [j for j, o in enumerate(self._obstacles) if o.sigma_schedule is not None]
         self._last_time, self._last_vector = np.nan, self._template.reshape(-1)
         self.DeclareVectorOutputPort(
             "obstacle_belief",
@@ -89,7 +87,7 @@ class ObstacleBeliefSource(LeafSystem):
                 self._start,
                 self._velocity,
             )
-            table = vector.reshape(-1, n + 4)
+            table = vector.reshape(-1, record_size(n))
         else:
             table = self._template.copy()
             vector = table.reshape(-1)
