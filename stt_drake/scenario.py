@@ -6,6 +6,7 @@ violation raises :class:`ScenarioError` naming the full field path and the rule.
 """
 
 import math
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Union
@@ -314,8 +315,6 @@ def _is_list(hint: Any) -> bool:
 
 
 def _type_hints(schema: type) -> dict[str, Any]:
-    import typing
-
     return typing.get_type_hints(schema)
 
 
@@ -584,14 +583,15 @@ def _validate_plant(scenario: Scenario) -> None:
             "must be > 0 (metres)",
             plant.body_radius,
         )
-    elif isinstance(plant, FrankaArm):
-        _validate_franka(scenario)
 
 
 def _validate_franka(scenario: Scenario) -> None:
-    """The arm's fields, q(0) inside the joint limits, and y(0) = TCP(q(0)) within r_min of
-    the start (so y(0) ∈ Γ(0))."""
-    # Lazy: loading the arm model needs pydrake.multibody, which other plants do not.
+    """The arm's fields, q(0) inside the joint limits, y(0) = TCP(q(0)) within r_min of the
+    start (so y(0) ∈ Γ(0)), and stage 2's funnel around the initial joint-velocity error —
+    all on one parse of the arm model."""
+    # Lazy: loading the arm model needs pydrake.multibody, which other plants do not;
+    # builders imports this module and holds the one scenario → law construction.
+    from stt_drake.builders import make_arm_law, make_tube_law
     from stt_drake.manipulator import ArmLimits
     from stt_drake.systems.franka import FR3_JOINTS, FR3_LINKS, ArmKinematics
 
@@ -637,6 +637,9 @@ def _validate_franka(scenario: Scenario) -> None:
         f"configuration, {np.round(tcp, 6).tolist()}, so y(0) ∈ Γ(0)",
         scenario.start,
     )
+    _validate_arm_funnel_start(
+        scenario, make_arm_law(scenario, limits), make_tube_law(scenario), kinematics
+    )
 
 
 def initial_stage_states(scenario: Scenario) -> np.ndarray:
@@ -655,11 +658,7 @@ def _validate_funnel_starts(scenario: Scenario) -> None:
     if PLANT_STAGES[type(scenario.plant)] < 2:
         return
     # Lazy: builders imports this module; it holds the one scenario → law construction.
-    from stt_drake.builders import make_arm_law, make_funnel_controller, make_tube_law
-
-    if isinstance(scenario.plant, FrankaArm):
-        _validate_arm_funnel_start(scenario, make_arm_law(scenario), make_tube_law(scenario))
-        return
+    from stt_drake.builders import make_funnel_controller, make_tube_law
 
     start = np.asarray(scenario.start, dtype=float)
     radius = make_tube_law(scenario).evaluate(start, scenario.belief_at(0.0)).radius
@@ -677,13 +676,12 @@ def _validate_funnel_starts(scenario: Scenario) -> None:
         )
 
 
-def _validate_arm_funnel_start(scenario: Scenario, law: Any, tube_law: Any) -> None:
+def _validate_arm_funnel_start(
+    scenario: Scenario, law: Any, tube_law: Any, kinematics: Any
+) -> None:
     """The arm starts at rest: stage 2's funnel must contain |0 − q̇_ref(0)| per joint,
     with q̇_ref(0) from the law at t = 0 (the null-space posture term when q(0) is not the
     home posture)."""
-    from stt_drake.systems.franka import ArmKinematics
-
-    kinematics = ArmKinematics()
     q0 = np.asarray(scenario.plant.initial_configuration, dtype=float)
     start = np.asarray(scenario.start, dtype=float)
     radius = tube_law.evaluate(start, scenario.belief_at(0.0)).radius
@@ -776,7 +774,10 @@ def validate(scenario: Scenario) -> None:
     funnel_dimension = PLANT_FUNNEL_DIMENSION.get(type(scenario.plant), n)
     _validate_controller(scenario.controller, funnel_dimension, stages)
     _validate_initial_condition(scenario)
-    _validate_funnel_starts(scenario)
+    if isinstance(scenario.plant, FrankaArm):
+        _validate_franka(scenario)  # after the controller: its funnel check needs them
+    else:
+        _validate_funnel_starts(scenario)
 
 
 def _validate_initial_condition(scenario: Scenario) -> None:
