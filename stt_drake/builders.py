@@ -367,6 +367,7 @@ def build_diagram(scenario: Scenario) -> SttDiagram:
         "tube": tube.GetOutputPort("tube"),
         "belief": belief,
         "diagnostics": tube.GetOutputPort("diagnostics"),
+        "recovery": tube.GetOutputPort("recovery"),
         "control": controller.GetOutputPort("control"),
         "margins": monitor.GetOutputPort("margins"),
         "output_avoid_probability": monitor.GetOutputPort("output_avoid_probability"),

@@ -15,7 +15,7 @@ from stt_drake.belief import record_size
 from stt_drake.builders import SttDiagram, build_diagram
 from stt_drake.invariants import HOLDS_TOLERANCE, InvariantTracker, tube_reach_time
 from stt_drake.manipulator import summarize_arm
-from stt_drake.scenario import Scenario
+from stt_drake.scenario import Scenario, obstacle_rate_bounds
 
 
 @dataclass
@@ -40,6 +40,7 @@ class RunResult:
 def collect_log(built: SttDiagram, scenario: Scenario, root_context: object) -> dict[str, Any]:
     """Read every logger into one dict of arrays (the `log.npz` layout, samples first)."""
     logs = {name: sink.FindLog(root_context) for name, sink in built.loggers.items()}
+    mean_speed_bound, sigma_rate_bound = obstacle_rate_bounds(scenario.obstacles)
     n, m = scenario.dimension, len(scenario.obstacles)
     tube = logs["tube"].data().T
     diagnostics = logs["diagnostics"].data().T.reshape(-1, 3, m)
@@ -53,6 +54,7 @@ def collect_log(built: SttDiagram, scenario: Scenario, root_context: object) -> 
         "avoid_probability": diagnostics[:, 0, :].copy(),
         "quantile_distance": diagnostics[:, 1, :].copy(),
         "theta": diagnostics[:, 2, :].copy(),
+        "recovery": logs["recovery"].data().T.copy(),
         "control": logs["control"].data().T.copy(),
         "margins": logs["margins"].data().T.copy(),
         "output_avoid_probability": logs["output_avoid_probability"].data().T.copy(),
@@ -64,6 +66,8 @@ def collect_log(built: SttDiagram, scenario: Scenario, root_context: object) -> 
         "target_set_radius": np.array(scenario.target_set_radius),
         "r_min": np.array(scenario.tube.r_min),
         "r_max": np.array(scenario.tube.r_max),
+        "mean_speed_bound": mean_speed_bound,
+        "sigma_rate_bound": sigma_rate_bound,
     }
     for name in built.extra_logs:  # plant-specific signals, samples first
         log[name] = logs[name].data().T.copy()

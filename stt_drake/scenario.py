@@ -71,7 +71,9 @@ class RandomObstacles:
 class TubeConfig:
     """Tube law constants (eqs. cen_dynamic, rad_sol). `nu` = 0 means "derive it":
     ν = 2 ln(n_o + 1)/r_min, which keeps r ≥ r_min/2. `update_rate_hz` = 0 integrates the
-    centre in continuous time; > 0 runs the fixed-rate (real-time) discrete update."""
+    centre in continuous time; > 0 runs the fixed-rate (real-time) discrete update.
+    `max_center_speed` (m/s) bounds |ċ| always, and is the speed of a recovery (0 derives
+    it from what the plant can follow, see :func:`stt_drake.feasibility.following_speed`)."""
 
     r_min: float = 0.1
     r_max: float = 0.3
@@ -80,6 +82,7 @@ class TubeConfig:
     k3: float = 0.4
     nu: float = 0.0
     update_rate_hz: float = 0.0
+    max_center_speed: float = 0.0
 
 
 @dataclass
@@ -226,6 +229,7 @@ class Scenario:
     simulator: SimulatorConfig = field(default_factory=_default_simulator_config)
     log_period: float = 0.02
     strict: bool = False
+    max_steps_per_second: float = 0.0
 
     @property
     def dimension(self) -> int:
@@ -252,6 +256,17 @@ def obstacle_belief(obstacles: list[Obstacle], dimension: int, t: float) -> Obst
         epsilon=np.array([o.epsilon for o in obstacles]),
         p_d=np.array([o.p_d for o in obstacles]),
     )
+
+
+def obstacle_rate_bounds(obstacles: list[Obstacle]) -> tuple[np.ndarray, np.ndarray]:
+    """Per obstacle, sup ‖μ̇_j‖ and sup |σ̇_j| (m/s) from its motion model and σ schedule,
+    steps excluded (a step is a belief discontinuity, see :mod:`stt_drake.motion`)."""
+    mean_speed = np.array([o.motion.speed_bound() for o in obstacles], dtype=float)
+    sigma_rate = np.array(
+        [0.0 if o.sigma_schedule is None else o.sigma_schedule.rate_bound() for o in obstacles],
+        dtype=float,
+    )
+    return mean_speed, sigma_rate
 
 
 def obstacle_sigma(obstacle: Obstacle, t: float) -> float:
@@ -437,6 +452,19 @@ def _require_range(value: list[float], path: str, low: float, high: float) -> No
     _require(low <= value[0] and value[1] <= high, path, f"must lie in [{low}, {high}]", value)
 
 
+def _require_step_times(times: list[float], path: str) -> None:
+    """Times of a piecewise-linear model: finite, non-decreasing, each at most twice (a
+    repeated time is a step, see :mod:`stt_drake.motion`)."""
+    _require(all(math.isfinite(t) for t in times), path, "must be finite", times)
+    steps = np.diff(np.asarray(times, dtype=float))
+    _require(
+        bool(np.all(steps >= 0.0)) and not bool(np.any((steps[1:] == 0.0) & (steps[:-1] == 0.0))),
+        path,
+        "must increase (a time may be repeated once: a step)",
+        times,
+    )
+
+
 def _validate_motion(motion: Motion, n: int, path: str) -> None:
     if isinstance(motion, ConstantVelocity):
         _require_vector(motion.start, n, f"{path}.start")
@@ -457,9 +485,7 @@ def _validate_motion(motion: Motion, n: int, path: str) -> None:
             "needs one position per time",
             motion.positions,
         )
-        _require(
-            bool(np.all(np.diff(motion.times) > 0)), f"{path}.times", "must increase", motion.times
-        )
+        _require_step_times(motion.times, f"{path}.times")
         for i, position in enumerate(motion.positions):
             _require_vector(position, n, f"{path}.positions[{i}]")
 
@@ -481,12 +507,7 @@ def _validate_obstacle(obstacle: Obstacle, n: int, path: str) -> None:
             "needs as many values as times (≥ 1)",
             schedule,
         )
-        _require(
-            bool(np.all(np.diff(schedule.times) > 0)),
-            f"{path}.sigma_schedule.times",
-            "must increase",
-            schedule.times,
-        )
+        _require_step_times(schedule.times, f"{path}.sigma_schedule.times")
         _require(
             all(v > 0.0 for v in schedule.values),
             f"{path}.sigma_schedule.values",

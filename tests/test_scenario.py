@@ -211,10 +211,10 @@ OBSTACLE_CASES = [
         id="schedule-value-negative",
     ),
     pytest.param(
-        {("obstacles", 0, "sigma_schedule"): {"times": [0.0, 5.0, 5.0], "values": [0.1] * 3}},
+        {("obstacles", 0, "sigma_schedule"): {"times": [0.0, 5.0, 5.0, 5.0], "values": [0.1] * 4}},
         f"{OBSTACLE0}.sigma_schedule.times",
-        "increase",
-        id="schedule-times-repeated",
+        "repeated once",
+        id="schedule-time-thrice",
     ),
     pytest.param(
         {("obstacles", 0, "sigma_schedule"): {"times": [0.0, 5.0, 2.0], "values": [0.1] * 3}},
@@ -320,10 +320,10 @@ DIMENSION_CASES = [
         id="waypoint-times-decreasing",
     ),
     pytest.param(
-        {MOTION: waypoints([0.0, 1.0, 1.0], [[2.5, 2.5], [2.6, 2.5], [2.7, 2.5]])},
+        {MOTION: waypoints([0.0, 1.0, 1.0, 1.0], [[2.5, 2.5], [2.6, 2.5], [2.7, 2.5], [2.8, 2.5]])},
         f"{OBSTACLE0}.motion.times",
-        "increase",
-        id="waypoint-times-repeated",
+        "repeated once",
+        id="waypoint-time-thrice",
     ),
     pytest.param(
         {MOTION: waypoints([0.0, 1.0, 2.0], [[2.5, 2.5], [2.6, 2.5]])},

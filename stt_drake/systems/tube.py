@@ -88,6 +88,9 @@ class SpatiotemporalTube(LeafSystem):
         self.DeclareVectorOutputPort(
             "diagnostics", 3 * obstacle_count, self._calc_diagnostics, prerequisites_of_calc=depends
         )
+        self.DeclareVectorOutputPort(
+            "recovery", obstacle_count, self._calc_recovery, prerequisites_of_calc=depends
+        )
 
     @property
     def law(self) -> TubeLaw:
@@ -158,6 +161,11 @@ class SpatiotemporalTube(LeafSystem):
                 [evaluation.avoid_probability, evaluation.quantile_distance, evaluation.theta]
             )
         )
+
+    def _calc_recovery(self, context: Context, output: BasicVector) -> None:
+        evaluation = self.evaluation(context)
+        epsilon = self._belief(context).epsilon
+        output.SetFromVector((evaluation.avoid_probability <= epsilon).astype(float))
 
     def DoCalcTimeDerivatives(  # noqa: N802 (Drake API)
         self, context: Context, derivatives: ContinuousState
