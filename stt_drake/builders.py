@@ -13,6 +13,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, Outpu
 from pydrake.systems.primitives import LogVectorOutput, MatrixGain, Sine, VectorLogSink
 
 from stt_drake.control import BoxFunnel, FunnelController
+from stt_drake.feasibility import center_speed, rate_bounds
 from stt_drake.manipulator import (
     ArmFunnelLaw,
     ArmLimits,
@@ -87,14 +88,17 @@ class SttDiagram:
 
 
 def make_tube_law(scenario: Scenario) -> TubeLaw:
-    """The tube law with the scenario's constants (ν derived when not given).
+    """The tube law with the scenario's constants (ν and max_center_speed derived when not
+    given, :func:`stt_drake.feasibility.center_speed`).
 
-    In continuous time the attraction gets the linear zone that the simulator's largest
-    step cannot resolve anyway (see :func:`stt_drake.tube.signed_cube_root_attraction`);
-    the fixed-rate update integrates the attraction's exact flow and needs none.
+    The attraction gets the linear zone δ = (k1·h)^{3/2} of the longest step h that
+    integrates it — the simulator's max step in continuous time, the update period at a
+    fixed rate — so no step of h overshoots η (see
+    :func:`stt_drake.tube.signed_cube_root_attraction`).
     """
     config = scenario.tube
-    continuous = config.update_rate_hz == 0.0
+    rate = config.update_rate_hz
+    step = 1.0 / rate if rate > 0.0 else scenario.simulator.max_step_size
     return TubeLaw(
         target=np.asarray(scenario.target, dtype=float),
         k1=config.k1,
@@ -103,9 +107,8 @@ def make_tube_law(scenario: Scenario) -> TubeLaw:
         r_min=config.r_min,
         r_max=config.r_max,
         nu=scenario.nu,
-        linear_zone=linear_zone_for_step(config.k1, scenario.simulator.max_step_size)
-        if continuous
-        else 0.0,
+        linear_zone=linear_zone_for_step(config.k1, step),
+        max_center_speed=center_speed(scenario),
     )
 
 
@@ -346,6 +349,7 @@ def build_diagram(scenario: Scenario) -> SttDiagram:
             count,
             update_period=1.0 / rate if rate > 0.0 else None,
             target_input=plant.sequencer is not None,
+            rate_bounds=rate_bounds(scenario),
         )
     )
     controller = plant.controller

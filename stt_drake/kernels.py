@@ -493,10 +493,13 @@ def _distance(point: np.ndarray, mean: np.ndarray, j: int) -> float:
 
 
 @njit(**_JIT)
-def _add_null_space(rate: np.ndarray, m: np.ndarray, goal: np.ndarray, weight: float) -> None:
+def _add_null_space(
+    rate: np.ndarray, m: np.ndarray, goal: np.ndarray, circulation: np.ndarray, weight: float
+) -> None:
     """rate += weight·v, v ⟂ m with |v| = |m| (:func:`stt_drake.tube.null_space_direction`):
-    n = 2, m rotated by +90°; n ≥ 3, the part of the goal direction orthogonal to m, else of
-    e_{n−1}, else of e_0 (the first whose orthogonal part is not degenerate)."""
+    n = 2, m rotated by +90°; n ≥ 3, along ω × m for a chosen circulation axis ω (zero: not
+    chosen), else the part of the goal direction orthogonal to m, else of e_{n−1}, else of
+    e_0 (the first whose orthogonal part is not degenerate)."""
     n = m.shape[0]
     if n == 1:
         return
@@ -509,6 +512,17 @@ def _add_null_space(rate: np.ndarray, m: np.ndarray, goal: np.ndarray, weight: f
         norm_m += m[i] * m[i]
     norm_m = math.sqrt(norm_m)
     scale = norm_m if norm_m > 0.0 else 1.0
+    if n == 3 and circulation.shape[0] == 3:
+        cx = circulation[1] * m[2] - circulation[2] * m[1]
+        cy = circulation[2] * m[0] - circulation[0] * m[2]
+        cz = circulation[0] * m[1] - circulation[1] * m[0]
+        length = math.sqrt(cx * cx + cy * cy + cz * cz)
+        if length > CIRCULATION_MIN_SINE * scale:
+            factor = weight * norm_m / length
+            rate[0] += factor * cx
+            rate[1] += factor * cy
+            rate[2] += factor * cz
+            return
     candidate = np.empty(n)
     for which in range(3):
         if which == 0:
@@ -536,9 +550,35 @@ def _add_null_space(rate: np.ndarray, m: np.ndarray, goal: np.ndarray, weight: f
             return
 
 
+#: A circulation axis ω is used while |ω × m̂| exceeds this (ω nearly parallel to m̂ gives
+#: no usable direction; the goal-based rule takes over).
+CIRCULATION_MIN_SINE = 1e-3
+
 #: Layout of the `constants` array of :func:`tube_step`: k1, r_min, r_max, ν, linear zone δ,
-#: prune_above, then the target η (n).
-TUBE_CONSTANTS = ("k1", "r_min", "r_max", "nu", "linear_zone", "prune_above")
+#: prune_above, max_center_speed, then the target η (n).
+TUBE_CONSTANTS = (
+    "k1",
+    "r_min",
+    "r_max",
+    "nu",
+    "linear_zone",
+    "prune_above",
+    "max_center_speed",
+)
+
+
+@njit(**_JIT)
+def period_avoid_probability(
+    distance: float, sigma: float, radius: float, reach: float, spread: float, n: int
+) -> float:
+    """Lower bound of P(‖x − O‖ ≥ radius) over the beliefs reachable within a horizon
+    (:func:`stt_drake.probability.period_avoid_probability`): the offset shrinks by
+    `reach` and the radius grows by spread·(distance + reach + radius)."""
+    offset = distance - reach
+    if offset < 0.0:
+        offset = 0.0
+    grown = radius + spread * (distance + reach + radius)
+    return chi_sf(grown / sigma, offset / sigma, n)
 
 
 @njit(**_JIT)
@@ -551,16 +591,23 @@ def tube_step(
     p_d: np.ndarray,
     k2: np.ndarray,
     k3: np.ndarray,
+    reach: np.ndarray,
+    spread: np.ndarray,
+    circulation: np.ndarray,
     constants: np.ndarray,
 ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
     """One tube-law evaluation (:meth:`stt_drake.tube.TubeLaw.evaluate`) in one pass.
 
-    Per obstacle j: q_j (eq. prob_q), d̂_j (eq. m_crv; the quantile is skipped where the
-    bound σ(a − Φ⁻¹(ε)) − r_o already exceeds `prune_above`, and that bound is returned),
-    θ_j, m_j, v_j; then ċ (eq. cen_dynamic) and the soft-min radius (eq. rad_sol).
-    `k2`, `k3` hold one gain per obstacle or a single one; `constants` is laid out as
-    :data:`TUBE_CONSTANTS` followed by η (few arguments: numba's dispatch costs per
-    argument).
+    Per obstacle j: q_j (eq. prob_q; with `reach`/`spread` the period lower bound of
+    :func:`period_avoid_probability`, empty arrays = exact), d̂_j (eq. m_crv, always at the
+    exact belief; the quantile is skipped where the bound σ(a − Φ⁻¹(ε)) − r_o already
+    exceeds `prune_above`, and that bound is returned), θ_j, m_j, v_j; then ċ (eq.
+    cen_dynamic) saturated at max_center_speed, or the recovery velocity when some
+    q_j ≤ ε_j: max_center_speed along Σ_j (c − μ_j)/‖c − μ_j‖ over those j, the direction
+    that increases them fastest; and the soft-min radius (eq. rad_sol). `k2`, `k3` hold one
+    gain per obstacle or a single one; `circulation` (m, 3) the chosen axes ω_j in 3D (or
+    empty); `constants` is laid out as :data:`TUBE_CONSTANTS` followed by η (few
+    arguments: numba's dispatch costs per argument).
 
     Returns:
         (ċ, r, q, d̂, θ).
@@ -571,13 +618,18 @@ def tube_step(
     nu = constants[3]
     linear_zone = constants[4]
     prune_above = constants[5]
-    target = constants[6:]
+    max_speed = constants[6]
+    target = constants[7:]
     count, n = mean.shape
+    inflated = reach.shape[0] == count
     q = np.empty(count)
     d_hat = np.empty(count)
     theta = np.empty(count)
     goal = np.empty(n)
     rate = np.empty(n)
+    escape = np.zeros(n)
+    recovering = False
+    no_axis = np.empty(0)
     for i in range(n):
         e = target[i] - center[i]
         goal[i] = e
@@ -588,8 +640,12 @@ def tube_step(
     m = np.empty(n)
     for j in range(count):
         s = sigma[j]
-        a = _distance(center, mean, j) / s
-        qj = chi_sf((radius[j] + r_min) / s, a, n)
+        distance = _distance(center, mean, j)
+        a = distance / s
+        if inflated:
+            qj = period_avoid_probability(distance, s, radius[j] + r_min, reach[j], spread[j], n)
+        else:
+            qj = chi_sf((radius[j] + r_min) / s, a, n)
         q[j] = qj
         eps = epsilon[j]
         lower = s * max(a - ndtri(eps), 0.0) - radius[j]
@@ -600,7 +656,13 @@ def tube_step(
         if qj <= p_d[j]:
             th = 1.0 / qj - 1.0 / p_d[j]
             theta[j] = th
-            inv_gap = 1.0 / max(qj - eps, 1e-12)
+            if qj <= eps:
+                recovering = True
+                if distance > 0.0:
+                    for i in range(n):
+                        escape[i] += (center[i] - mean[j, i]) / distance
+                continue
+            inv_gap = 1.0 / (qj - eps)
             for i in range(n):
                 m[i] = (center[i] - mean[j, i]) * inv_gap
             gain2 = k2[j] if k2.shape[0] > 1 else k2[0]
@@ -608,10 +670,257 @@ def tube_step(
             for i in range(n):
                 rate[i] += gain2 * th * m[i]
             if gain3 != 0.0:
-                _add_null_space(rate, m, goal, gain3 * th)
+                axis = circulation[j] if circulation.shape[0] == count else no_axis
+                _add_null_space(rate, m, goal, axis, gain3 * th)
         else:
             theta[j] = 0.0
+    if recovering:
+        _recovery_velocity(rate, escape, goal, max_speed)
+    else:
+        _saturate(rate, max_speed)
     return rate, soft_min_radius(d_hat, r_max, nu), q, d_hat, theta
+
+
+@njit(**_JIT)
+def _saturate(rate: np.ndarray, max_speed: float) -> None:
+    """Scale `rate` down to norm `max_speed` if it is faster (|ċ| ≤ max_center_speed)."""
+    size = 0.0
+    for i in range(rate.shape[0]):
+        size += rate[i] * rate[i]
+    size = math.sqrt(size)
+    if size > max_speed:
+        for i in range(rate.shape[0]):
+            rate[i] *= max_speed / size
+
+
+@njit(**_JIT)
+def _recovery_velocity(
+    rate: np.ndarray, escape: np.ndarray, goal: np.ndarray, max_speed: float
+) -> None:
+    """rate = max_speed·escape/‖escape‖; when the escape directions cancel (a symmetric
+    squeeze, or c on a mean), the goal direction's, else e_0's."""
+    n = rate.shape[0]
+    for direction in (escape, goal):
+        size = 0.0
+        for i in range(n):
+            size += direction[i] * direction[i]
+        size = math.sqrt(size)
+        if size > 1e-9:
+            for i in range(n):
+                rate[i] = max_speed * direction[i] / size
+            return
+    rate[:] = 0.0
+    rate[0] = max_speed
+
+
+@njit(**_JIT)
+def _inflation(
+    sigma: np.ndarray, mean_speed: np.ndarray, sigma_rate: np.ndarray, horizon: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(reach, spread) of :meth:`stt_drake.tube.BeliefRateBounds.inflation`."""
+    reach = mean_speed * horizon
+    spread = np.empty(sigma.shape[0])
+    for j in range(sigma.shape[0]):
+        low = sigma[j] - sigma_rate[j] * horizon
+        spread[j] = sigma[j] / low - 1.0 if low > 0.0 else math.inf
+    return reach, spread
+
+
+@njit(**_JIT)
+def _segment_avoid_lower_bound(
+    start: np.ndarray,
+    end: np.ndarray,
+    mean: np.ndarray,
+    j: int,
+    sigma: float,
+    radius: float,
+    reach: float,
+    spread: float,
+) -> float:
+    """:func:`stt_drake.probability.segment_avoid_lower_bound` for obstacle j."""
+    n = start.shape[0]
+    length2 = 0.0
+    along = 0.0
+    for i in range(n):
+        chord = end[i] - start[i]
+        length2 += chord * chord
+        along += (mean[j, i] - start[i]) * chord
+    fraction = along / length2 if length2 > 0.0 else 0.0
+    fraction = min(max(fraction, 0.0), 1.0)
+    nearest = 0.0
+    for i in range(n):
+        d = start[i] + fraction * (end[i] - start[i]) - mean[j, i]
+        nearest += d * d
+    nearest = math.sqrt(nearest)
+    farthest = max(_distance(start, mean, j), _distance(end, mean, j))
+    grown = radius + spread * (farthest + reach + radius)
+    offset = nearest - reach
+    return chi_sf(grown / sigma, (offset if offset > 0.0 else 0.0) / sigma, n)
+
+
+@njit(**_JIT)
+def tube_advance(
+    center: np.ndarray,
+    mean: np.ndarray,
+    sigma: np.ndarray,
+    radius: np.ndarray,
+    epsilon: np.ndarray,
+    p_d: np.ndarray,
+    k2: np.ndarray,
+    k3: np.ndarray,
+    mean_speed: np.ndarray,
+    sigma_rate: np.ndarray,
+    circulation: np.ndarray,
+    constants: np.ndarray,
+    duration: float,
+    max_attempts: int,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """:meth:`stt_drake.tube.TubeLaw.advance` in one call (same steps, same rules):
+    sub-steps of the law with the look-ahead bound over 2·duration, each keeping every
+    positive gap at least half; then the segment certificate over one duration, pulled back
+    towards `center` until it holds. `constants` must skip the quantiles (prune_above = −∞).
+
+    Returns:
+        (c_{k+1}, certified (m,) booleans, accepted sub-steps).
+    """
+    count, n = mean.shape
+    k1 = constants[0]
+    r_min = constants[1]
+    max_speed = constants[6]
+    target = constants[7:]
+    reach2, spread2 = _inflation(sigma, mean_speed, sigma_rate, 2.0 * duration)
+    position = center.copy()
+    rate, _r, q, _d, theta = tube_step(
+        position, mean, sigma, radius, epsilon, p_d, k2, k3, reach2, spread2, circulation, constants
+    )
+    remaining = duration
+    step = duration
+    accepted = 0
+    candidate = np.empty(n)
+    for _attempt in range(max_attempts):
+        if remaining <= 1e-12 * duration or step < duration * 2.0**-30:
+            break
+        step = min(step, remaining)
+        acting = False
+        for j in range(count):
+            if theta[j] > 0.0:
+                acting = True
+        if acting:
+            for i in range(n):
+                candidate[i] = position[i] + step * rate[i]
+        else:  # the exact attraction flow (eq. cen_simplified), capped at max_speed·step
+            length = 0.0
+            for i in range(n):
+                e = target[i] - position[i]
+                left = abs(e) ** (2.0 / 3.0) - (2.0 / 3.0) * k1 * step
+                move = e - math.copysign(max(left, 0.0) ** 1.5, e)
+                candidate[i] = move
+                length += move * move
+            length = math.sqrt(length)
+            scale = max_speed * step / length if length > max_speed * step else 1.0
+            for i in range(n):
+                candidate[i] = position[i] + scale * candidate[i]
+        rate_c, _r, q_c, _d, theta_c = tube_step(
+            candidate,
+            mean,
+            sigma,
+            radius,
+            epsilon,
+            p_d,
+            k2,
+            k3,
+            reach2,
+            spread2,
+            circulation,
+            constants,
+        )
+        keeps = True
+        for j in range(count):
+            gap = q[j] - epsilon[j]
+            if gap > 0.0 and q_c[j] - epsilon[j] < 0.5 * gap:
+                keeps = False
+        if keeps:
+            position = candidate.copy()
+            rate, q, theta = rate_c, q_c, theta_c
+            remaining -= step
+            accepted += 1
+            step *= 2.0
+        else:
+            step *= 0.5
+    reach1, spread1 = _inflation(sigma, mean_speed, sigma_rate, duration)
+    must_hold = np.empty(count, dtype=np.bool_)
+    for j in range(count):
+        start_q = period_avoid_probability(
+            _distance(center, mean, j), sigma[j], radius[j] + r_min, reach1[j], spread1[j], n
+        )
+        must_hold[j] = start_q - epsilon[j] > 0.0
+    certified = np.empty(count, dtype=np.bool_)
+    for _halving in range(60):
+        holds = True
+        for j in range(count):
+            lower = _segment_avoid_lower_bound(
+                center, position, mean, j, sigma[j], radius[j] + r_min, reach1[j], spread1[j]
+            )
+            certified[j] = lower - epsilon[j] > 0.0
+            if must_hold[j] and not certified[j]:
+                holds = False
+        if holds:
+            return position, certified, accepted
+        for i in range(n):
+            position[i] = center[i] + 0.5 * (position[i] - center[i])
+    return center.copy(), must_hold, accepted
+
+
+@njit(**_JIT)
+def _cross_unit(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> float:
+    """out = a × b normalised (3D); returns |a × b| before normalising (out untouched if 0)."""
+    x = a[1] * b[2] - a[2] * b[1]
+    y = a[2] * b[0] - a[0] * b[2]
+    z = a[0] * b[1] - a[1] * b[0]
+    length = math.sqrt(x * x + y * y + z * z)
+    if length > 0.0:
+        out[0] = x / length
+        out[1] = y / length
+        out[2] = z / length
+    return length
+
+
+@njit(**_JIT)
+def carry_circulation(
+    axes: np.ndarray, center: np.ndarray, mean: np.ndarray, active: np.ndarray, goal: np.ndarray
+) -> np.ndarray:
+    """:func:`stt_drake.tube.carry_circulation` (3D), one loop over the obstacles."""
+    count = mean.shape[0]
+    result = np.zeros((count, 3))
+    unit_m = np.empty(3)
+    fallback = np.zeros((3, 3))
+    fallback[0, :] = goal
+    fallback[1, 2] = 1.0
+    fallback[2, 0] = 1.0
+    sizes = np.array([math.sqrt(goal[0] ** 2 + goal[1] ** 2 + goal[2] ** 2), 1.0, 1.0])
+    for j in range(count):
+        if not active[j]:
+            continue
+        distance = _distance(center, mean, j)
+        scale = distance if distance > 1e-300 else 1e-300
+        for i in range(3):
+            unit_m[i] = (center[i] - mean[j, i]) / scale
+        dot = axes[j, 0] * unit_m[0] + axes[j, 1] * unit_m[1] + axes[j, 2] * unit_m[2]
+        length = 0.0
+        for i in range(3):
+            result[j, i] = axes[j, i] - dot * unit_m[i]
+            length += result[j, i] ** 2
+        length = math.sqrt(length)
+        if length > 1e-6:
+            for i in range(3):
+                result[j, i] /= length
+            continue
+        result[j, :] = 0.0
+        for k in range(3):
+            if _cross_unit(unit_m, fallback[k], result[j]) > 1e-6 * max(sizes[k], 1e-300):
+                break
+            result[j, :] = 0.0
+    return result
 
 
 @njit(**_JIT)
@@ -635,7 +944,14 @@ def soft_min_radius(d_hat: np.ndarray, r_max: float, nu: float) -> float:
 
 @njit(**_JIT)
 def tube_step_packed(
-    center: np.ndarray, belief: np.ndarray, k2: np.ndarray, k3: np.ndarray, constants: np.ndarray
+    center: np.ndarray,
+    belief: np.ndarray,
+    k2: np.ndarray,
+    k3: np.ndarray,
+    reach: np.ndarray,
+    spread: np.ndarray,
+    circulation: np.ndarray,
+    constants: np.ndarray,
 ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`tube_step` on a belief port vector ([μ (n), σ, r_o, ε, p_d] per obstacle)."""
     n = center.shape[0]
@@ -649,6 +965,9 @@ def tube_step_packed(
         table[:, n + 3],
         k2,
         k3,
+        reach,
+        spread,
+        circulation,
         constants,
     )
 

@@ -201,3 +201,59 @@ def quantile_distance(
         quantile = noncentral_chi_isf(epsilon[exact], offset[exact], mean.shape[-1])
         result[exact] = sigma[exact] * quantile - radius[exact]
     return result
+
+
+def period_avoid_probability(
+    point: np.ndarray,
+    mean: np.ndarray,
+    sigma: np.ndarray,
+    radius: np.ndarray,
+    reach: np.ndarray,
+    spread: np.ndarray,
+) -> np.ndarray:
+    """A lower bound of P(‖point − O_j(t)‖ ≥ radius_j) over every belief reachable within a
+    horizon τ from N(mean_j, sigma_j² I): means within `reach` Δ_j = v̄_j τ of mean_j and
+    standard deviations in [σ_j − s̄_j τ, σ_j + s̄_j τ], with spread γ_j = σ_j/(σ_j − s̄_j τ) − 1
+    (derivation: :mod:`stt_drake.tube`, "Discrete-time guarantee").
+
+    With a = ‖point − mean_j‖ it is the survival function at the offset max(a − Δ_j, 0) and
+    the radius radius_j + γ_j (a + Δ_j + radius_j); Δ = γ = 0 gives :func:`avoid_probability`.
+    """
+    mean = np.asarray(mean, dtype=float)
+    sigma = np.asarray(sigma, dtype=float)
+    radius = np.asarray(radius, dtype=float)
+    distance = np.linalg.norm(np.asarray(point, dtype=float) - mean, axis=-1)
+    grown = radius + spread * (distance + reach + radius)
+    return noncentral_chi_sf(
+        grown / sigma, np.maximum(distance - reach, 0.0) / sigma, mean.shape[-1]
+    )
+
+
+def segment_avoid_lower_bound(
+    start: np.ndarray,
+    end: np.ndarray,
+    mean: np.ndarray,
+    sigma: np.ndarray,
+    radius: np.ndarray,
+    reach: np.ndarray,
+    spread: np.ndarray,
+) -> np.ndarray:
+    """A lower bound of :func:`period_avoid_probability` at every point of the segment
+    [start, end]: the survival function falls with the radius and rises with the offset, so
+    take the offset at the segment's closest point to mean_j and the radius at its farthest
+    (an endpoint)."""
+    mean = np.asarray(mean, dtype=float)
+    sigma = np.asarray(sigma, dtype=float)
+    start = np.asarray(start, dtype=float)
+    chord = np.asarray(end, dtype=float) - start
+    length2 = float(chord @ chord)
+    along = (mean - start) @ chord / length2 if length2 > 0.0 else np.zeros(len(mean))
+    closest = start + np.clip(along, 0.0, 1.0)[:, None] * chord
+    nearest = np.linalg.norm(closest - mean, axis=-1)
+    farthest = np.maximum(
+        np.linalg.norm(start - mean, axis=-1), np.linalg.norm(start + chord - mean, axis=-1)
+    )
+    grown = radius + spread * (farthest + reach + radius)
+    return noncentral_chi_sf(
+        grown / sigma, np.maximum(nearest - reach, 0.0) / sigma, mean.shape[-1]
+    )

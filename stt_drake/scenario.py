@@ -799,6 +799,10 @@ def validate(scenario: Scenario) -> None:
         _validate_franka(scenario)  # after the controller: its funnel check needs them
     else:
         _validate_funnel_starts(scenario)
+    # Lazy: feasibility builds on this module's schema (speeds, periods, warnings).
+    from stt_drake.feasibility import validate_real_time
+
+    validate_real_time(scenario)
 
 
 def _validate_initial_condition(scenario: Scenario) -> None:

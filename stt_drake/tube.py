@@ -8,10 +8,74 @@ Fixes to the printed paper (see DESIGN.md):
 * the attraction term is the signed cube root per component, k1·sign(η − c)|η − c|^{1/3};
 * the radius is the log-sum-exp soft-min r = −(1/ν) ln(e^{−ν r_max} + Σ_j e^{−ν d̂_j}),
   which is always ≤ min(r_max, min_j d̂_j); it stays > 0 only if ν > ln(n_o + 1)/r_min.
+
+Bounded centre, and recovery
+----------------------------
+|ċ| ≤ v_c = ``max_center_speed`` always: the law's ċ is scaled down to v_c when faster.
+Near q_j = ε_j the term k2·θ_j·m_j dominates and points along c − μ_j, so the saturated
+ċ leaves the ε level set at speed v_c: claim (ii) part 1 holds as long as that level set
+does not approach faster than v_c (for a translating obstacle, its speed). When some
+q_j ≤ ε_j already (a belief that jumped, a new obstacle, an obstacle faster than v_c) the
+law is in *recovery*: ċ = v_c·u/‖u‖ with u = Σ_{j: q_j ≤ ε_j} (c − μ_j)/‖c − μ_j‖, the
+direction in which those q_j increase fastest (∇_c q_j is along c − μ_j for isotropic
+beliefs), until every q_j > ε_j again. Nothing is floored, so the centre never jumps; the
+invariant monitor reports the violated margins honestly.
+
+In 3D, v_j ⟂ m_j cannot be a continuous function of m_j alone on the whole sphere (the
+hairy-ball theorem), which is why the goal-based choice flipped across the
+obstacle–target line. The law therefore takes a circulation axis ω_j per obstacle, chosen
+once when obstacle j activates (ω = m̂ × (η − c), so v_j starts along the goal) and carried
+along while it stays active (:func:`carry_circulation`): v_j = |m_j|·(ω_j × m̂_j)/|ω_j × m̂_j|.
+
+Discrete-time guarantee (the fixed-rate tube)
+---------------------------------------------
+A real-time tube updates every h seconds with the belief sampled at the update t_k, and
+the obstacles keep moving in between. Suppose each belief moves at bounded rates,
+‖μ̇_j‖ ≤ v̄_j and |σ̇_j| ≤ s̄_j (from the motion model, a tracker's velocity estimate or a
+declared bound). Over a horizon τ every belief N(μ_j(t), σ_j(t)²I), t ∈ [t_k, t_k + τ], has
+‖μ_j(t) − μ_j(t_k)‖ ≤ Δ_j = v̄_j τ and σ_j(t) ≥ σ_lo = σ_j(t_k) − s̄_j τ. Couple O(t) =
+μ(t) + σ(t)Z with O_k = μ_k + σ_k Z (same Z, σ_k = σ_j(t_k)). For a point x, radius R and
+d = x − μ(t):
+
+1. Scale: ‖d − σ(t)Z‖ < R implies ‖d − σ_k Z‖ < R + γ(‖d‖ + R) with γ = σ_k/σ_lo − 1 (in
+   units of σ the collision ball B(d/σ, R/σ) is contained in B(d/σ_k, (R + γ(‖d‖ + R))/σ_k)
+   both when σ(t) < σ_k and when σ(t) ≥ σ_k, since 1 − σ_k/σ(t) ≤ γ).
+2. Translate: ‖d‖ ≤ a + Δ with a = ‖x − μ_k‖, and the survival function of ‖x − μ_k − σ_kZ‖
+   only falls when the centre offset falls, so shifting the mean by at most Δ costs at most
+   Δ of offset.
+
+Hence q_j(x, t) ≥ Q_j^τ(x) := P(‖Z'‖ ≥ (R + γ(a + Δ + R))/σ_k), Z' ~ N(max(a − Δ, 0)/σ_k·e, I),
+for every t in the horizon (:func:`stt_drake.probability.period_avoid_probability`; a
+Monte Carlo test samples beliefs inside the bounds). On a segment, take the offset at the
+closest point and the radius at the farthest (:func:`stt_drake.probability.
+segment_avoid_lower_bound`).
+
+The update (:meth:`TubeLaw.advance`) at t_k, from the centre c_k reached at t_k:
+
+* it integrates the law with the look-ahead lower bound Q^{2h} in place of q_j, in
+  sub-steps that keep every positive gap Q^{2h}_j − ε_j at least half of what it was
+  (fraction to the boundary), at |ċ| ≤ v_c, giving c_{k+1};
+* it certifies the straight segment [c_k, c_{k+1}] with Q^h: every obstacle whose
+  Q^h_j(c_k) > ε_j must keep the segment's lower bound > ε_j, else c_{k+1} is pulled back
+  towards c_k (c_k itself passes);
+* the tube output moves linearly from c_k to c_{k+1} over [t_k, t_k + h] (continuous,
+  |ċ| ≤ v_c), so q_j(c(t), t) > ε_j at every instant of the period for every certified j.
+
+Induction: Q^{2h} from the belief at t_k bounds every belief up to t_k + 2h, which contains
+the horizon h after t_{k+1}, so Q^{2h}_{k}(c_{k+1}) > ε_j implies Q^h_{k+1}(c_{k+1}) > ε_j
+for a translating belief (the composition of the two shifts is exact; with σ changing it
+holds to first order in s̄h/σ, and any shortfall is flagged as a recovery, never hidden).
+So without belief jumps every period is certified. An obstacle whose Q^h_j(c_k) ≤ ε_j
+(its belief jumped, or moved faster than its bound) is *recovering* for that period: the
+update escapes along the recovery direction at v_c, and the run records it.
+
+The radius is evaluated continuously at (c(t), belief(t)), so r ≤ min_j d̂_j exactly at
+every instant (claim ii, part 2) and r > 0 wherever q_j(c(t)) > ε_j (claim iii).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -23,7 +87,9 @@ from stt_drake.probability import (
     COMPILED_DIMENSIONS,
     PRUNE_HEADROOM_NU,
     avoid_probability,
+    period_avoid_probability,
     quantile_distance,
+    segment_avoid_lower_bound,
 )
 
 
@@ -78,12 +144,15 @@ def attraction_reach_time(error: np.ndarray, k1: float) -> float:
     return float(np.max(3.0 * np.abs(error) ** (2.0 / 3.0) / (2.0 * k1)))
 
 
-def null_space_direction(m: np.ndarray, goal_direction: np.ndarray) -> np.ndarray:
-    """v_j ⟂ m_j with |v_j| = |m_j|, varying continuously with m_j (rows are obstacles).
+def null_space_direction(
+    m: np.ndarray, goal_direction: np.ndarray, circulation: np.ndarray | None = None
+) -> np.ndarray:
+    """v_j ⟂ m_j with |v_j| = |m_j| (rows are obstacles).
 
-    n = 2: m rotated by +90°. n ≥ 3: the part of the goal direction orthogonal to m,
-    falling back to a fixed axis (e_z, then e_x) where the goal direction is parallel to m.
-    n = 1: zero (R¹ has no orthogonal direction).
+    n = 2: m rotated by +90°. n = 3 with a circulation axis ω_j (row of `circulation`, zero
+    = none chosen): along ω_j × m_j. Otherwise (n ≥ 3): the part of the goal direction
+    orthogonal to m, falling back to a fixed axis (e_z, then e_x) where the goal direction
+    is parallel to m. n = 1: zero (R¹ has no orthogonal direction).
     """
     count, dimension = m.shape
     if dimension == 1:
@@ -93,10 +162,15 @@ def null_space_direction(m: np.ndarray, goal_direction: np.ndarray) -> np.ndarra
     norm_m = np.linalg.norm(m, axis=1, keepdims=True)
     unit_m = m / np.where(norm_m > 0.0, norm_m, 1.0)
     direction = np.empty_like(m)
+    chosen = np.zeros(count, dtype=bool)
+    if dimension == 3 and circulation is not None and len(circulation) == count:
+        turned = np.cross(circulation, unit_m)
+        length = np.linalg.norm(turned, axis=1)
+        chosen = length > CIRCULATION_MIN_SINE
+        direction[chosen] = turned[chosen] / length[chosen, None]
     candidates = [np.broadcast_to(goal_direction, m.shape)]
     for axis in (dimension - 1, 0):
         candidates.append(np.broadcast_to(np.eye(dimension)[axis], m.shape))
-    chosen = np.zeros(count, dtype=bool)
     for candidate in candidates:
         orthogonal = candidate - np.sum(candidate * unit_m, axis=1, keepdims=True) * unit_m
         length = np.linalg.norm(orthogonal, axis=1)
@@ -106,14 +180,57 @@ def null_space_direction(m: np.ndarray, goal_direction: np.ndarray) -> np.ndarra
     return direction * norm_m
 
 
+#: A circulation axis ω is used while |ω × m̂| exceeds this (same as the compiled kernel).
+CIRCULATION_MIN_SINE = 1e-3
+
+
+def carry_circulation(
+    axes: np.ndarray, center: np.ndarray, mean: np.ndarray, active: np.ndarray, goal: np.ndarray
+) -> np.ndarray:
+    """The circulation axes ω_j (rows, 3D) after one step: zero where obstacle j is not
+    active (θ_j = 0); chosen as m̂_j × (η − c) where it has just activated (falling back to
+    m̂ × e_z, then m̂ × e_x, when the goal lies along m̂); otherwise carried along, i.e. made
+    orthogonal to the current m̂_j again and renormalised (re-chosen if that degenerates).
+    m̂_j = (c − μ_j)/‖c − μ_j‖ has the direction of m_j (q_j > ε_j while it is active).
+
+    One call of the compiled :func:`stt_drake.kernels.carry_circulation` unless the numpy
+    path is selected (the code below is its reference)."""
+    kernels = backend.kernels()
+    if kernels is not None:
+        return kernels.carry_circulation(
+            np.asarray(axes, dtype=float),
+            np.asarray(center, dtype=float),
+            np.asarray(mean, dtype=float),
+            np.asarray(active, dtype=bool),
+            np.asarray(goal, dtype=float),
+        )
+    offset = np.asarray(center, dtype=float) - np.asarray(mean, dtype=float)
+    unit_m = offset / np.maximum(np.linalg.norm(offset, axis=1, keepdims=True), 1e-300)
+    carried = axes - np.sum(axes * unit_m, axis=1, keepdims=True) * unit_m
+    length = np.linalg.norm(carried, axis=1)
+    result = np.zeros_like(axes)
+    keep = active & (length > 1e-6)
+    result[keep] = carried[keep] / length[keep, None]
+    fresh = active & ~keep
+    for candidate in (goal, np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])):
+        axis = np.cross(unit_m, np.broadcast_to(candidate, unit_m.shape))
+        length = np.linalg.norm(axis, axis=1)
+        usable = fresh & (length > 1e-6 * max(float(np.linalg.norm(candidate)), 1e-300))
+        result[usable] = axis[usable] / length[usable, None]
+        fresh &= ~usable
+    return result
+
+
 @dataclass(frozen=True)
 class TubeEvaluation:
     """Everything the tube law gives at one instant.
 
     Attributes:
-        center_rate: (n,) ċ of eq. (cen_dynamic), m/s.
+        center_rate: (n,) ċ of eq. (cen_dynamic) saturated at max_center_speed, or the
+            recovery velocity, m/s.
         radius: r of eq. (rad_sol), metres.
-        avoid_probability: (m,) q_j(c, t) of eq. (prob_q).
+        avoid_probability: (m,) q_j(c, t) of eq. (prob_q) (its period lower bound when the
+            law was evaluated with a horizon).
         quantile_distance: (m,) d̂_j of eq. (m_crv), metres (a lower bound where pruned).
         theta: (m,) switching gains θ_j.
     """
@@ -123,6 +240,49 @@ class TubeEvaluation:
     avoid_probability: np.ndarray
     quantile_distance: np.ndarray
     theta: np.ndarray
+
+
+@dataclass(frozen=True)
+class BeliefRateBounds:
+    """How fast each obstacle's belief may change: sup ‖μ̇_j‖ and sup |σ̇_j| (m/s).
+
+    Steps (belief jumps) are outside these bounds by definition: the tube recovers from them.
+    """
+
+    mean_speed: np.ndarray
+    sigma_rate: np.ndarray
+
+    @classmethod
+    def still(cls, count: int) -> BeliefRateBounds:
+        """Bounds of a belief that does not move (every rate 0)."""
+        return cls(np.zeros(count), np.zeros(count))
+
+    def inflation(self, sigma: np.ndarray, horizon: float) -> tuple[np.ndarray, np.ndarray]:
+        """(Δ_j, γ_j) over `horizon` seconds from standard deviations `sigma`: the reach
+        v̄_j·τ of the mean and the spread σ_j/(σ_j − s̄_j τ) − 1 (infinite once σ could
+        reach 0); see the module docstring, "Discrete-time guarantee"."""
+        sigma = np.asarray(sigma, dtype=float)
+        low = sigma - self.sigma_rate * horizon
+        positive = low > 0.0
+        spread = np.full(sigma.shape, np.inf)
+        spread[positive] = sigma[positive] / low[positive] - 1.0
+        return self.mean_speed * horizon, spread
+
+
+@dataclass(frozen=True)
+class FixedRateUpdate:
+    """One fixed-rate update: where the centre goes, and what is certified.
+
+    Attributes:
+        center: (n,) c_{k+1}, reached at the end of the period (the output moves linearly).
+        certified: (m,) True where q_j(c(t), t) > ε_j is proven over the whole period;
+            False where obstacle j is recovering (its belief left its rate bounds).
+        substeps: accepted sub-steps of the law.
+    """
+
+    center: np.ndarray
+    certified: np.ndarray
+    substeps: int
 
 
 @dataclass(frozen=True)
@@ -138,6 +298,9 @@ class TubeLaw:
         r_max: largest tube radius (> r_min).
         nu: soft-min sharpness; must exceed ln(n_o + 1)/r_min for claim (iii).
         linear_zone: δ of :func:`signed_cube_root_attraction` (metres; 0 = exact cube root).
+        max_center_speed: v_c, the bound on |ċ| and the recovery speed (m/s). Infinite
+            means unbounded: a recovery then has no finite speed and its ċ is not finite
+            (the Drake system stops the run and says so).
     """
 
     target: np.ndarray
@@ -148,6 +311,7 @@ class TubeLaw:
     r_max: float
     nu: float
     linear_zone: float = 0.0
+    max_center_speed: float = math.inf
 
     def radius(self, quantile_distance: np.ndarray) -> float:
         """Soft-min radius r = −(1/ν) ln(e^{−ν r_max} + Σ e^{−ν d̂_j}) (eq. rad_sol).
@@ -166,19 +330,27 @@ class TubeLaw:
         return self.r_max + PRUNE_HEADROOM_NU / self.nu
 
     @cached_property
-    def _kernel_constants(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(k2, k3, constants, constants without pruning) as float arrays for the compiled
-        kernel (layout: :data:`stt_drake.kernels.TUBE_CONSTANTS`, then η); once per law."""
-        head = [self.k1, self.r_min, self.r_max, self.nu, self.linear_zone]
+    def _kernel_constants(self) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """(k2, k3, constants by pruning mode) as float arrays for the compiled kernel
+        (layout: :data:`stt_drake.kernels.TUBE_CONSTANTS`, then η); once per law. Modes:
+        "pruned", "exact" (every quantile) and "rate" (no quantile: ċ, q, θ only)."""
         target = np.asarray(self.target, dtype=float).ravel()
+
+        def constants(prune_above: float) -> np.ndarray:
+            head = [self.k1, self.r_min, self.r_max, self.nu, self.linear_zone]
+            return np.array([*head, prune_above, self.max_center_speed, *target], dtype=float)
+
         return (
             np.atleast_1d(np.array(self.k2, dtype=float)).ravel(),
             np.atleast_1d(np.array(self.k3, dtype=float)).ravel(),
-            np.array([*head, self.prune_above, *target], dtype=float),
-            np.array([*head, np.inf, *target], dtype=float),
+            {
+                "pruned": constants(self.prune_above),
+                "exact": constants(np.inf),
+                "rate": constants(-np.inf),
+            },
         )
 
-    def _gains_for(self, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def _gains_for(self, count: int) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         constants = self._kernel_constants
         if constants[0].size not in (1, count) or constants[1].size not in (1, count):
             raise ValueError(
@@ -188,18 +360,39 @@ class TubeLaw:
         return constants
 
     def evaluate(
-        self, center: np.ndarray, belief: ObstacleBelief, prune: bool = True
+        self,
+        center: np.ndarray,
+        belief: ObstacleBelief,
+        prune: bool = True,
+        circulation: np.ndarray | None = None,
+        inflation: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> TubeEvaluation:
         """Evaluate ċ, r and the diagnostics at the centre `center` (n,).
 
         One call of the compiled :func:`stt_drake.kernels.tube_step` for n ≤ 3 (unless the
         numpy path is selected, see :mod:`stt_drake.backend`), else the numpy reference
         below. `prune=False` computes every d̂_j exactly (see :attr:`prune_above`).
+        `circulation`: (m, 3) axes ω_j of :func:`carry_circulation` (3D). `inflation`:
+        (Δ, γ) of :meth:`BeliefRateBounds.inflation`; q_j, θ_j and ċ then use the period
+        lower bound of q_j (d̂_j and r stay at the belief itself).
         """
+        return self._evaluate(
+            center, belief, "pruned" if prune else "exact", circulation, inflation
+        )
+
+    def _evaluate(
+        self,
+        center: np.ndarray,
+        belief: ObstacleBelief,
+        mode: str,
+        circulation: np.ndarray | None,
+        inflation: tuple[np.ndarray, np.ndarray] | None,
+    ) -> TubeEvaluation:
         kernels = backend.kernels()
         if kernels is None or belief.mean.shape[-1] not in COMPILED_DIMENSIONS:
-            return self._evaluate_numpy(center, belief, prune)
-        k2, k3, pruned, unpruned = self._gains_for(belief.mean.shape[0])
+            return self._evaluate_numpy(center, belief, mode, circulation, inflation)
+        k2, k3, constants = self._gains_for(belief.mean.shape[0])
+        reach, spread, axes = _kernel_extras(belief.mean.shape, circulation, inflation)
         return TubeEvaluation(
             *kernels.tube_step(
                 np.asarray(center, dtype=float),
@@ -210,62 +403,89 @@ class TubeLaw:
                 belief.p_d,
                 k2,
                 k3,
-                pruned if prune else unpruned,
+                reach,
+                spread,
+                axes,
+                constants[mode],
             )
         )
 
     def evaluate_packed(
-        self, center: np.ndarray, belief_vector: np.ndarray, prune: bool = True
+        self,
+        center: np.ndarray,
+        belief_vector: np.ndarray,
+        prune: bool = True,
+        circulation: np.ndarray | None = None,
     ) -> TubeEvaluation:
         """:meth:`evaluate` on a belief port vector (layout of :mod:`stt_drake.belief`),
         without building the :class:`ObstacleBelief` (the Drake system's hot path)."""
         kernels = backend.kernels()
         dimension = len(center)
+        mode = "pruned" if prune else "exact"
         if (
             kernels is None
             or dimension not in COMPILED_DIMENSIONS
             or len(belief_vector) % record_size(dimension)  # from_vector names the problem
         ):
             belief = ObstacleBelief.from_vector(belief_vector, dimension)
-            return self._evaluate_numpy(center, belief, prune)
-        k2, k3, pruned, unpruned = self._gains_for(len(belief_vector) // record_size(dimension))
+            return self._evaluate_numpy(center, belief, mode, circulation, None)
+        count = len(belief_vector) // record_size(dimension)
+        k2, k3, constants = self._gains_for(count)
+        reach, spread, axes = _kernel_extras((count, dimension), circulation, None)
         return TubeEvaluation(
             *kernels.tube_step_packed(
                 np.asarray(center, dtype=float),
                 np.asarray(belief_vector, dtype=float),
                 k2,
                 k3,
-                pruned if prune else unpruned,
+                reach,
+                spread,
+                axes,
+                constants[mode],
             )
         )
 
     def _evaluate_numpy(
-        self, center: np.ndarray, belief: ObstacleBelief, prune: bool = True
+        self,
+        center: np.ndarray,
+        belief: ObstacleBelief,
+        mode: str = "pruned",
+        circulation: np.ndarray | None = None,
+        inflation: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> TubeEvaluation:
         """The numpy reference of :meth:`evaluate` (any n)."""
-        q = avoid_probability(center, belief.mean, belief.sigma, belief.radius + self.r_min)
+        safety_radius = belief.radius + self.r_min
+        if inflation is None:
+            q = avoid_probability(center, belief.mean, belief.sigma, safety_radius)
+        else:
+            q = period_avoid_probability(
+                center, belief.mean, belief.sigma, safety_radius, *inflation
+            )
+        prune_above = {"pruned": self.prune_above, "exact": None, "rate": -np.inf}[mode]
         d_hat = quantile_distance(
-            center,
-            belief.mean,
-            belief.sigma,
-            belief.radius,
-            belief.epsilon,
-            prune_above=self.prune_above if prune else None,
+            center, belief.mean, belief.sigma, belief.radius, belief.epsilon, prune_above
         )
         active = q <= belief.p_d
         theta = np.zeros_like(q)
         theta[active] = 1.0 / q[active] - 1.0 / belief.p_d[active]
         goal_direction = self.target - center
         rate = signed_cube_root_attraction(goal_direction, self.k1, self.linear_zone)
-        if np.any(active):
-            # The centre must never reach q = ε; if a crossing ever happens the monitor
-            # reports it, and the floor keeps m pointing away from the obstacle meanwhile.
-            gap = np.maximum(q[active] - belief.epsilon[active], 1e-12)
-            m = (center - belief.mean[active]) / gap[:, None]
-            v = null_space_direction(m, goal_direction)
-            k2 = np.broadcast_to(self.k2, q.shape)[active]
-            k3 = np.broadcast_to(self.k3, q.shape)[active]
-            rate = rate + np.sum((k2[:, None] * m + k3[:, None] * v) * theta[active, None], axis=0)
+        violated = q <= belief.epsilon
+        if np.any(violated):
+            rate = self._recovery_velocity(center, belief.mean[violated], goal_direction)
+        else:
+            if np.any(active):
+                gap = q[active] - belief.epsilon[active]
+                m = (center - belief.mean[active]) / gap[:, None]
+                axes = None if circulation is None else np.asarray(circulation)[active]
+                v = null_space_direction(m, goal_direction, axes)
+                k2 = np.broadcast_to(self.k2, q.shape)[active]
+                k3 = np.broadcast_to(self.k3, q.shape)[active]
+                weights = theta[active, None]
+                rate = rate + np.sum((k2[:, None] * m + k3[:, None] * v) * weights, axis=0)
+            speed = float(np.linalg.norm(rate))
+            if speed > self.max_center_speed:
+                rate = rate * (self.max_center_speed / speed)
         return TubeEvaluation(
             center_rate=rate,
             radius=self.radius(d_hat),
@@ -274,55 +494,143 @@ class TubeLaw:
             theta=theta,
         )
 
+    def _recovery_velocity(
+        self, center: np.ndarray, means: np.ndarray, goal_direction: np.ndarray
+    ) -> np.ndarray:
+        """v_c along Σ (c − μ_j)/‖c − μ_j‖ over the violated obstacles (the goal direction,
+        else e_0, when those cancel)."""
+        offset = center - means
+        distance = np.linalg.norm(offset, axis=1, keepdims=True)
+        escape = np.sum(
+            np.where(distance > 0.0, offset / np.where(distance > 0.0, distance, 1.0), 0.0), axis=0
+        )
+        for direction in (escape, goal_direction):
+            size = float(np.linalg.norm(direction))
+            if size > 1e-9:
+                return self.max_center_speed * direction / size
+        rate = np.zeros_like(center, dtype=float)
+        rate[0] = self.max_center_speed
+        return rate
+
     def advance(
         self,
         center: np.ndarray,
         belief: ObstacleBelief,
         duration: float,
-        max_substeps: int = 10_000,
-    ) -> tuple[np.ndarray, int]:
-        """Fixed-rate (real-time) update: move c over one period with the belief held.
+        bounds: BeliefRateBounds | None = None,
+        circulation: np.ndarray | None = None,
+        max_attempts: int = 200,
+    ) -> FixedRateUpdate:
+        """Fixed-rate (real-time) update over one period h = `duration` with the belief
+        sampled at its start (module docstring, "Discrete-time guarantee").
 
-        Splitting: the attraction uses its exact flow (:func:`attraction_flow`, never
-        overshoots η); the avoidance term an explicit Euler step. A sub-step is accepted only
-        if every gap q_j − ε_j that was positive stays at least half of what it was
-        (a fraction-to-boundary rule), else it is halved; after an accepted sub-step the
-        next one may double. So no q_j can cross ε_j within a period, however thin the
-        barrier layer.
+        The law runs with the look-ahead bound Q^{2h} (from `bounds`; None = a belief that
+        does not move) in sub-steps at |ċ| ≤ v_c: the attraction's exact flow when no
+        obstacle acts, else an explicit step of the law (its linear zone keeps that step
+        from overshooting η). A sub-step is accepted only if every positive gap
+        Q^{2h}_j − ε_j stays at least half of what it was, else it is halved; after an
+        accepted one the next may double. Then the segment from `center` to the result is
+        certified with Q^h and pulled back until it is.
+
+        One call of the compiled :func:`stt_drake.kernels.tube_advance` for n ≤ 3 (unless
+        the numpy path is selected); the code below is its reference.
 
         Returns:
-            the centre after `duration`, and the number of accepted sub-steps.
-
-        Raises:
-            RuntimeError: if `max_substeps` attempts cannot cover the period.
+            the :class:`FixedRateUpdate`; never raises for lack of progress (a period the
+            sub-steps cannot cover is held where they got to, which stays certified).
         """
         center = np.array(center, dtype=float)
+        count = belief.count
+        bounds = bounds if bounds is not None else BeliefRateBounds.still(count)
+        kernels = backend.kernels()
+        if kernels is not None and belief.dimension in COMPILED_DIMENSIONS:
+            k2, k3, constants = self._gains_for(count)
+            _reach, _spread, axes = _kernel_extras(belief.mean.shape, circulation, None)
+            position, certified, accepted = kernels.tube_advance(
+                center,
+                belief.mean,
+                belief.sigma,
+                belief.radius,
+                belief.epsilon,
+                belief.p_d,
+                k2,
+                k3,
+                np.asarray(bounds.mean_speed, dtype=float),
+                np.asarray(bounds.sigma_rate, dtype=float),
+                axes,
+                constants["rate"],
+                float(duration),
+                max_attempts,
+            )
+            return FixedRateUpdate(position, certified, accepted)
+        look_ahead = bounds.inflation(belief.sigma, 2.0 * duration)
+        position, evaluation = (
+            center,
+            self._evaluate(center, belief, "rate", circulation, look_ahead),
+        )
         remaining, step, accepted = duration, duration, 0
-        evaluation = self.evaluate(center, belief)
-        for _attempt in range(max_substeps):
-            if remaining <= 0.0:
-                return center, accepted
+        for _attempt in range(max_attempts):
+            if remaining <= 1e-12 * duration or step < duration * 2.0**-30:
+                break
             step = min(step, remaining)
-            attraction = signed_cube_root_attraction(
-                self.target - center, self.k1, self.linear_zone
+            candidate = position + self._displacement(position, evaluation, belief, step)
+            candidate_evaluation = self._evaluate(
+                candidate, belief, "rate", circulation, look_ahead
             )
-            avoidance = evaluation.center_rate - attraction
-            candidate = (
-                center + attraction_flow(self.target - center, self.k1, step) + step * avoidance
-            )
-            candidate_evaluation = self.evaluate(candidate, belief)
             gap = evaluation.avoid_probability - belief.epsilon
             new_gap = candidate_evaluation.avoid_probability - belief.epsilon
             if np.all((gap <= 0.0) | (new_gap >= 0.5 * gap)):
-                center, evaluation = candidate, candidate_evaluation
+                position, evaluation = candidate, candidate_evaluation
                 remaining -= step
                 accepted += 1
                 step *= 2.0
-                if remaining <= 0.0:  # covered by this attempt, even if it was the last one
-                    return center, accepted
             else:
                 step *= 0.5
-        raise RuntimeError(
-            f"tube fixed-rate update: {max_substeps} sub-steps did not cover {duration} s "
-            f"(last step {step:.3g} s)"
+        period = bounds.inflation(belief.sigma, duration)
+        safety_radius = belief.radius + self.r_min
+        start_gap = (
+            period_avoid_probability(center, belief.mean, belief.sigma, safety_radius, *period)
+            - belief.epsilon
         )
+        must_hold = start_gap > 0.0
+        for _halving in range(60):
+            lower = segment_avoid_lower_bound(
+                center, position, belief.mean, belief.sigma, safety_radius, *period
+            )
+            certified = lower - belief.epsilon > 0.0
+            if np.all(certified[must_hold]):
+                break
+            position = center + 0.5 * (position - center)
+        else:
+            position = center
+            certified = must_hold
+        return FixedRateUpdate(position, certified, accepted)
+
+    def _displacement(
+        self, center: np.ndarray, evaluation: TubeEvaluation, belief: ObstacleBelief, step: float
+    ) -> np.ndarray:
+        """One sub-step's move: the exact attraction flow when no obstacle acts (θ = 0 for
+        all), else step·ċ; never longer than v_c·step."""
+        if np.any(evaluation.theta > 0.0):
+            return step * evaluation.center_rate
+        move = attraction_flow(self.target - center, self.k1, step)
+        length = float(np.linalg.norm(move))
+        limit = self.max_center_speed * step
+        return move * (limit / length) if length > limit else move
+
+
+def _kernel_extras(
+    shape: tuple[int, int],
+    circulation: np.ndarray | None,
+    inflation: tuple[np.ndarray, np.ndarray] | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(reach, spread, circulation) arrays for the compiled kernel: empty where not used."""
+    count, dimension = shape
+    empty = np.empty(0)
+    reach, spread = (empty, empty) if inflation is None else inflation
+    axes = (
+        np.empty((0, dimension))
+        if circulation is None
+        else np.ascontiguousarray(circulation, dtype=float).reshape(count, dimension)
+    )
+    return np.asarray(reach, dtype=float), np.asarray(spread, dtype=float), axes

@@ -111,10 +111,23 @@ def test_unreached_target_exits_1(tmp_path, capsys):
     assert all(record["holds"] for record in metrics["invariants"].values())
 
 
+#: Parked far away, then at t = 3 s on the centre's path (case 1's c(3 s) ≈ (2.73, 2.11)).
+JUMPING_OBSTACLE = """  - motion: !Waypoints
+      times: [0.0, 3.0, 3.0, 25.0]
+      positions: [[4.5, 0.5], [4.5, 0.5], [2.6, 2.45], [2.6, 2.45]]
+    radius: 0.15
+    sigma: 0.1
+    epsilon: 0.9
+    p_d: 0.9999
+"""
+
+
 def test_violated_guarantee_exits_1_and_strict_mode_stops_at_it(tmp_path, capsys):
-    """A controller gain far too low to follow the tube: y leaves Γ. Strict mode stops the
-    Simulator at the first violation and names the invariant, time and margin."""
-    weak = _write(tmp_path, _case1_with(**{"kappa: [8.0]": "kappa: [0.02]"}))
+    """A belief that jumps onto the tube at t = 3 s (a Waypoints step: an obstacle first
+    seen late): the radius drops at once, y is left outside Γ and the centre inside the ε
+    set until it recovers. Strict mode stops the Simulator at the first violation and
+    names the invariant, time and margin."""
+    weak = _write(tmp_path, _case1_with(**{"obstacles:\n": "obstacles:\n" + JUMPING_OBSTACLE}))
     code = main(["run", str(weak), "--out", str(tmp_path / "lax"), "--no-figures"])
     assert code == 1
     lax = json.loads((tmp_path / "lax" / "metrics.json").read_text())

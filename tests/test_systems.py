@@ -32,7 +32,7 @@ from stt_drake.systems.controller import STTController
 from stt_drake.systems.monitor import InvariantMonitor
 from stt_drake.systems.omni import OmniDriveInterface, OmniRobot, wheel_matrix
 from stt_drake.systems.tube import SpatiotemporalTube
-from stt_drake.tube import TubeLaw, linear_zone_for_step
+from stt_drake.tube import BeliefRateBounds, TubeLaw, linear_zone_for_step
 
 MARGIN = {name: i for i, name in enumerate(INVARIANT_NAMES)}
 
@@ -230,10 +230,7 @@ def assert_diagnostics(diagnostics, q, d_hat, theta, law: TubeLaw):
 def tube_context(tube: SpatiotemporalTube, center: np.ndarray, belief: ObstacleBelief):
     context = tube.CreateDefaultContext()
     tube.GetInputPort("obstacle_belief").FixValue(context, belief.to_vector())
-    if tube.update_period is None:
-        context.SetContinuousState(center)
-    else:
-        context.SetDiscreteState(0, center)
+    tube.set_center(context, center)
     return context
 
 
@@ -368,7 +365,10 @@ def test_tube_fixed_rate_in_diagram_with_continuous_state():
     state in this mode, must write none. build_diagram with update_rate_hz > 0 needs this."""
     law = make_law()
     builder = DiagramBuilder()
-    tube = builder.AddSystem(SpatiotemporalTube(law, np.zeros(2), 2, update_period=0.01))
+    tube = builder.AddSystem(SpatiotemporalTube(
+            law, np.zeros(2), 2, update_period=0.01, rate_bounds=BeliefRateBounds.still(2)
+        )
+    )
     belief = builder.AddSystem(ConstantVectorSource(TUBE_BELIEF.to_vector()))
     integrator = builder.AddSystem(Integrator(3))
     builder.Connect(belief.get_output_port(), tube.GetInputPort("obstacle_belief"))
@@ -383,16 +383,25 @@ def test_tube_fixed_rate_in_diagram_with_continuous_state():
 def test_tube_fixed_rate_five_updates():
     law = make_law()
     start = np.array([0.4, -0.1])
-    tube = SpatiotemporalTube(law, start, obstacle_count=2, update_period=0.01)
+    tube = SpatiotemporalTube(
+        law, start, obstacle_count=2, update_period=0.01, rate_bounds=BeliefRateBounds.still(2)
+    )
     assert tube.update_period == 0.01
     context = tube_context(tube, start, TUBE_BELIEF)
     simulator = Simulator(tube, context)
-    simulator.AdvanceTo(0.05)
-
-    expected = start.copy()
+    centers = [start.copy()]
     for _ in range(5):  # updates at t = 0, 0.01, ..., 0.04
-        expected, _ = law.advance(expected, TUBE_BELIEF, 0.01)
-    np.testing.assert_allclose(tube.center(simulator.get_context()), expected, rtol=0.0, atol=1e-14)
+        centers.append(law.advance(centers[-1], TUBE_BELIEF, 0.01).center)
+    # Between updates the output moves linearly from the centre reached at the update to
+    # the next one: halfway through the last period it is their midpoint.
+    simulator.AdvanceTo(0.045)
+    np.testing.assert_allclose(
+        tube.center(simulator.get_context()), 0.5 * (centers[4] + centers[5]), rtol=0, atol=1e-12
+    )
+    simulator.AdvanceTo(0.05)
+    expected = centers[5]
+    # The fraction (t − t_k)/h is 1 up to a rounding of t: 1e-12 m, not bitwise.
+    np.testing.assert_allclose(tube.center(simulator.get_context()), expected, rtol=0.0, atol=1e-12)
     assert np.linalg.norm(expected - start) > 1e-3  # the update really moved the centre
 
     _, radius, *_ = reference_tube(expected, TUBE_BELIEF, law)
@@ -434,7 +443,13 @@ def thin_q_gap(center: np.ndarray) -> float:
 def run_thin_layer(law, update_period, config: SimulatorConfig | None, duration: float = 15.0):
     """Simulate the tube alone against the fixed thin-layer belief; record at every step
     (every update in fixed-rate mode) the time, centre, q − ε and the diagnostics' q."""
-    tube = SpatiotemporalTube(law, np.zeros(2), obstacle_count=1, update_period=update_period)
+    tube = SpatiotemporalTube(
+        law,
+        np.zeros(2),
+        obstacle_count=1,
+        update_period=update_period,
+        rate_bounds=BeliefRateBounds.still(1),
+    )
     context = tube.CreateDefaultContext()
     tube.GetInputPort("obstacle_belief").FixValue(context, THIN_BELIEF.to_vector())
     simulator = Simulator(tube, context)
@@ -496,9 +511,9 @@ class RecordingLaw(TubeLaw):
 
     gaps: list[float] = field(default_factory=list)
 
-    def evaluate_packed(self, center, belief_vector, prune=True):
+    def evaluate_packed(self, center, belief_vector, prune=True, circulation=None):
         self.gaps.append(thin_q_gap(center))
-        return super().evaluate_packed(center, belief_vector, prune)
+        return super().evaluate_packed(center, belief_vector, prune, circulation)
 
 
 def test_thin_layer_trap_is_real_for_fixed_step_explicit_integration():
@@ -904,6 +919,7 @@ LOGGER_NAMES = (
     "tube",
     "belief",
     "diagnostics",
+    "recovery",
     "control",
     "margins",
     "output_avoid_probability",
@@ -949,6 +965,7 @@ def test_build_diagram_structure_and_logs(rate):
     logs = {name: sink.FindLog(root) for name, sink in built.loggers.items()}
     expected_times = np.arange(41) * 0.05  # every log_period from 0 to 2 s
     sizes = {"output": 2, "tube": 3, "belief": 12, "diagnostics": 6, "control": 2, "margins": 5}
+    sizes |= {"recovery": 2}
     sizes |= {"output_avoid_probability": 2, "tube_avoid_probability": 2}
     for name, log in logs.items():
         np.testing.assert_allclose(log.sample_times(), expected_times, atol=1e-9, err_msg=name)

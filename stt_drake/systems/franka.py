@@ -105,6 +105,24 @@ class ArmKinematics:
         )
 
 
+def fr3_lever_arm_bounds() -> np.ndarray:
+    """ℓ_i (m), i = 1..7: upper bounds of the distance from joint i's axis to the TCP in any
+    configuration, so ‖J(q) e‖ ≤ Σ_i ℓ_i |e_i| for every q: the sum of the fixed distances
+    along the chain from joint i's origin to the next joint origins and on to the TCP."""
+    plant = make_fr3_plant()
+    context = plant.CreateDefaultContext()
+    origins = [
+        plant.GetJointByName(f"fr3_joint{i}")
+        .frame_on_child()
+        .CalcPoseInWorld(context)
+        .translation()
+        for i in range(1, FR3_JOINTS + 1)
+    ]
+    origins.append(plant.GetFrameByName(FR3_TCP).CalcPoseInWorld(context).translation())
+    hops = np.linalg.norm(np.diff(np.array(origins), axis=0), axis=1)
+    return np.cumsum(hops[::-1])[::-1]
+
+
 def _cache(system: LeafSystem, description: str, calc: object, tickets: set) -> object:
     """Declare a cache entry holding any Python object, computed by `calc`."""
     return system.DeclareCacheEntry(

@@ -12,31 +12,42 @@ from pydrake.systems.framework import (
     Context,
     ContinuousState,
     DiscreteValues,
+    EventStatus,
     LeafSystem,
     ValueProducer,
 )
 
 from stt_drake.belief import ObstacleBelief, belief_size
-from stt_drake.tube import TubeEvaluation, TubeLaw
+from stt_drake.tube import BeliefRateBounds, TubeEvaluation, TubeLaw, carry_circulation
 
 
 class SpatiotemporalTube(LeafSystem):
     """The tube Γ(t) = B(c(t), r(t)) of Sec. 3, driven online by the obstacle belief.
 
-    Input `obstacle_belief`; outputs `tube` = [c, r] (n + 1) and `diagnostics` =
-    [q_j (m), d̂_j (m), θ_j (m)].
+    Input `obstacle_belief`; outputs `tube` = [c, r] (n + 1), `diagnostics` =
+    [q_j (m), d̂_j (m), θ_j (m)] and `recovery` (m): 1 while the tube is recovering from
+    obstacle j (its belief left the bounds the guarantee relies on; see
+    :mod:`stt_drake.tube`), else 0.
 
     Two modes:
 
     * continuous (``update_period=None``): c is continuous state, ċ from eq. (cen_dynamic)
-      integrated by the Simulator. Near the ε level set ċ is stiff; run it with error
-      control and a bounded max step (the scenarios' default SimulatorConfig), and the
-      invariant monitor reports a crossing if one ever happens.
-    * fixed rate (``update_period=h``): c is discrete state, updated every h seconds with the
-      belief sampled at the update, the way it runs on a robot; :meth:`TubeLaw.advance`
-      sub-steps so that no q_j can cross ε_j within a period.
+      (|ċ| ≤ max_center_speed, recovery where q_j ≤ ε_j) integrated by the Simulator with
+      error control and a bounded max step (the scenarios' default SimulatorConfig);
+      recovery is q_j(c) ≤ ε_j.
+    * fixed rate (``update_period=h``): every h seconds :meth:`TubeLaw.advance` computes
+      the next centre from the belief sampled at the update, the way it runs on a robot;
+      the output moves linearly from the centre at the update to that next centre over
+      the period, and q_j(c(t), t) > ε_j is certified for the whole period from
+      `rate_bounds` (required in this mode: the guarantee needs to know how fast each
+      belief may move). Recovery is "period not certified for obstacle j".
 
-    The radius is always evaluated at the current belief, so r ≤ min_j d̂_j at every instant.
+    The radius is always evaluated at the current centre and belief, so r ≤ min_j d̂_j at
+    every instant.
+
+    In 3D the null-space directions follow circulation axes held in the Context (chosen
+    when an obstacle activates, carried while it stays active; :func:`carry_circulation`),
+    updated at every Simulator step (continuous) or update (fixed rate).
 
     With ``target_input=True`` the target η is read from an extra input port `target` (n)
     instead of ``law.target`` — a task sequencer switches it (e.g. a pick-and-place).
@@ -49,13 +60,21 @@ class SpatiotemporalTube(LeafSystem):
         obstacle_count: int,
         update_period: float | None = None,
         target_input: bool = False,
+        rate_bounds: BeliefRateBounds | None = None,
     ) -> None:
         super().__init__()
         self.set_name("spatiotemporal_tube")
+        if update_period is not None and rate_bounds is None:
+            raise ValueError(
+                "rate_bounds: a fixed-rate tube needs each obstacle's belief rate bounds "
+                "(BeliefRateBounds; .still(count) for beliefs that do not move) to keep its "
+                "guarantee over a whole period"
+            )
         self._law = law
         self._dimension = len(initial_center)
         self._count = obstacle_count
         self.update_period = update_period
+        self._rate_bounds = rate_bounds
         self._belief_port = self.DeclareVectorInputPort(
             "obstacle_belief", belief_size(obstacle_count, self._dimension)
         )
@@ -63,23 +82,33 @@ class SpatiotemporalTube(LeafSystem):
             self.DeclareVectorInputPort("target", self._dimension) if target_input else None
         )
         self._laws_by_target: dict[bytes, TubeLaw] = {}
-        self._last_key: tuple[bytes, bytes, bytes] | None = None
+        self._last_key: tuple[bytes, ...] | None = None
         self._last_evaluation: tuple[TubeEvaluation, np.ndarray] | None = None
         initial_center = np.asarray(initial_center, dtype=float)
+        circulates = self._dimension == 3 and obstacle_count > 0
+        self._circulation_index = (
+            self.DeclareDiscreteState(np.zeros(3 * obstacle_count)) if circulates else None
+        )
         if update_period is None:
             self.DeclareContinuousState(BasicVector(initial_center))
-            state_ticket = self.xc_ticket()
+            tickets = {self.xc_ticket(), self.xd_ticket()}
+            if circulates:
+                self.DeclarePerStepDiscreteUpdateEvent(self._carry_circulation)
         else:
-            self._state_index = self.DeclareDiscreteState(initial_center)
+            # [centre at the last update, centre at the end of its period, its time]
+            self._state_index = self.DeclareDiscreteState(
+                np.concatenate([initial_center, initial_center, [0.0]])
+            )
+            self._recovery_index = self.DeclareDiscreteState(np.zeros(obstacle_count))
             self.DeclarePeriodicDiscreteUpdateEvent(update_period, 0.0, self._discrete_update)
-            state_ticket = self.xd_ticket()
+            tickets = {self.xd_ticket(), self.time_ticket()}
         self._evaluation = self.DeclareCacheEntry(
             description="tube law evaluation",
             # (TubeEvaluation, the `tube` port value [c, r])
             value_producer=ValueProducer(
                 allocate=AbstractValue.Make(object()).Clone, calc=self._calc_evaluation
             ),
-            prerequisites_of_calc={state_ticket, self.all_input_ports_ticket()},
+            prerequisites_of_calc=tickets | {self.all_input_ports_ticket()},
         )
         depends = {self._evaluation.ticket()}
         self.DeclareVectorOutputPort(
@@ -89,7 +118,10 @@ class SpatiotemporalTube(LeafSystem):
             "diagnostics", 3 * obstacle_count, self._calc_diagnostics, prerequisites_of_calc=depends
         )
         self.DeclareVectorOutputPort(
-            "recovery", obstacle_count, self._calc_recovery, prerequisites_of_calc=depends
+            "recovery",
+            obstacle_count,
+            self._calc_recovery,
+            prerequisites_of_calc=depends | {self.xd_ticket()},
         )
 
     @property
@@ -97,10 +129,29 @@ class SpatiotemporalTube(LeafSystem):
         return self._law
 
     def center(self, context: Context) -> np.ndarray:
-        """The tube centre c held in `context`."""
+        """The tube centre c(t) in `context` (interpolated within a fixed-rate period)."""
         if self.update_period is None:
             return context.get_continuous_state_vector().CopyToVector()
-        return context.get_discrete_state(self._state_index).CopyToVector()
+        state = context.get_discrete_state(self._state_index).CopyToVector()
+        n = self._dimension
+        fraction = min(max((context.get_time() - state[-1]) / self.update_period, 0.0), 1.0)
+        return state[:n] + fraction * (state[n : 2 * n] - state[:n])
+
+    def set_center(self, context: Context, center: np.ndarray) -> None:
+        """Place the centre at `center` in `context` (held there until the next update in
+        fixed-rate mode)."""
+        center = np.asarray(center, dtype=float)
+        if self.update_period is None:
+            context.SetContinuousState(center)
+            return
+        state = np.concatenate([center, center, [context.get_time()]])
+        context.SetDiscreteState(self._state_index, state)
+
+    def _circulation(self, context: Context) -> np.ndarray | None:
+        if self._circulation_index is None:
+            return None
+        axes = context.get_discrete_state(self._circulation_index).CopyToVector()
+        return axes.reshape(self._count, 3)
 
     def _belief(self, context: Context) -> ObstacleBelief:
         return ObstacleBelief.from_vector(self._belief_port.Eval(context), self._dimension)
@@ -126,15 +177,17 @@ class SpatiotemporalTube(LeafSystem):
         law = self._law_in(context)
         center = self.center(context)
         belief = self._belief_port.Eval(context)
-        # The evaluation is a pure function of (c, belief, η). The integrator asks again for
-        # the point the monitor has just checked (start of the next step) after its cache
-        # was invalidated, so the last evaluation is kept and reused when its inputs match.
+        circulation = self._circulation(context)
+        # The evaluation is a pure function of (c, belief, η, axes). The integrator asks
+        # again for the point the monitor has just checked (start of the next step) after
+        # its cache was invalidated, so the last evaluation is kept and reused on a match.
         target = b"" if self._target_port is None else np.asarray(law.target).tobytes()
-        key = (center.tobytes(), belief.tobytes(), target)
+        axes = b"" if circulation is None else circulation.tobytes()
+        key = (center.tobytes(), belief.tobytes(), target, axes)
         if key == self._last_key:
             value.set_value(self._last_evaluation)
             return
-        evaluation = law.evaluate_packed(center, belief)
+        evaluation = law.evaluate_packed(center, belief, circulation=circulation)
         tube = np.empty(self._dimension + 1)  # the `tube` port value, [c, r]
         tube[:-1] = center
         tube[-1] = evaluation.radius
@@ -142,7 +195,8 @@ class SpatiotemporalTube(LeafSystem):
         if not (all(map(math.isfinite, rate)) and math.isfinite(evaluation.radius)):
             raise RuntimeError(
                 f"tube law produced a non-finite value at t = {context.get_time():.6g} s: "
-                f"ċ = {evaluation.center_rate}, r = {evaluation.radius}"
+                f"ċ = {evaluation.center_rate}, r = {evaluation.radius} (a recovery needs "
+                f"a finite max_center_speed, v_c = {law.max_center_speed})"
             )
         self._last_key, self._last_evaluation = key, (evaluation, tube)
         value.set_value(self._last_evaluation)
@@ -163,9 +217,11 @@ class SpatiotemporalTube(LeafSystem):
         )
 
     def _calc_recovery(self, context: Context, output: BasicVector) -> None:
-        evaluation = self.evaluation(context)
+        if self.update_period is not None:
+            output.SetFromVector(context.get_discrete_state(self._recovery_index).value())
+            return
         epsilon = self._belief(context).epsilon
-        output.SetFromVector((evaluation.avoid_probability <= epsilon).astype(float))
+        output.SetFromVector((self.evaluation(context).avoid_probability <= epsilon) * 1.0)
 
     def DoCalcTimeDerivatives(  # noqa: N802 (Drake API)
         self, context: Context, derivatives: ContinuousState
@@ -173,8 +229,41 @@ class SpatiotemporalTube(LeafSystem):
         if self.update_period is None:  # a fixed-rate tube has no continuous state
             derivatives.get_mutable_vector().SetFromVector(self.evaluation(context).center_rate)
 
+    def _carried_axes(
+        self, context: Context, center: np.ndarray, law: TubeLaw, theta: np.ndarray
+    ) -> np.ndarray:
+        """The circulation axes after this step (:func:`carry_circulation`) at `center`,
+        with θ_j evaluated there."""
+        mean = self._belief(context).mean
+        axes = self._circulation(context)
+        return carry_circulation(axes, center, mean, theta > 0.0, law.target - center)
+
+    def _carry_circulation(self, context: Context, discrete_state: DiscreteValues) -> EventStatus:
+        center, theta = self.center(context), self.evaluation(context).theta
+        if not np.any(theta > 0.0) and not np.any(self._circulation(context)):
+            return EventStatus.DidNothing()  # nothing active, nothing held: no state change
+        axes = self._carried_axes(context, center, self._law_in(context), theta)
+        discrete_state.set_value(self._circulation_index, axes.ravel())
+        return EventStatus.Succeeded()
+
     def _discrete_update(self, context: Context, discrete_state: DiscreteValues) -> None:
-        center, _ = self._law_in(context).advance(
-            self.center(context), self._belief(context), self.update_period
+        law = self._law_in(context)
+        state = context.get_discrete_state(self._state_index).CopyToVector()
+        n = self._dimension
+        reached = state[n : 2 * n]  # the centre at this update (end of the last period)
+        update = law.advance(
+            reached,
+            self._belief(context),
+            self.update_period,
+            self._rate_bounds,
+            self._circulation(context),
         )
-        discrete_state.set_value(self._state_index, center)
+        discrete_state.set_value(
+            self._state_index, np.concatenate([reached, update.center, [context.get_time()]])
+        )
+        discrete_state.set_value(self._recovery_index, (~update.certified) * 1.0)
+        if self._circulation_index is not None:
+            belief, axes = self._belief(context), self._circulation(context)
+            theta = law.evaluate(update.center, belief, circulation=axes).theta
+            axes = self._carried_axes(context, update.center, law, theta)
+            discrete_state.set_value(self._circulation_index, axes.ravel())
