@@ -657,6 +657,7 @@ def tube_step(
             th = 1.0 / qj - 1.0 / p_d[j]
             theta[j] = th
             if qj <= eps:
+                theta[j] = 1.0 / eps - 1.0 / p_d[j]  # unused in recovery: its largest value
                 recovering = True
                 if distance > 0.0:
                     for i in range(n):

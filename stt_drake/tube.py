@@ -232,7 +232,8 @@ class TubeEvaluation:
         avoid_probability: (m,) q_j(c, t) of eq. (prob_q) (its period lower bound when the
             law was evaluated with a horizon).
         quantile_distance: (m,) d̂_j of eq. (m_crv), metres (a lower bound where pruned).
-        theta: (m,) switching gains θ_j.
+        theta: (m,) switching gains θ_j (at their largest in-law value 1/ε_j − 1/p_d_j
+            where q_j ≤ ε_j: the recovery velocity does not use them).
     """
 
     center_rate: np.ndarray
@@ -466,11 +467,14 @@ class TubeLaw:
             center, belief.mean, belief.sigma, belief.radius, belief.epsilon, prune_above
         )
         active = q <= belief.p_d
+        violated = q <= belief.epsilon
         theta = np.zeros_like(q)
-        theta[active] = 1.0 / q[active] - 1.0 / belief.p_d[active]
+        # In recovery θ_j is unused; it is reported at its largest in-law value 1/ε − 1/p_d.
+        theta[active] = (
+            1.0 / np.maximum(q[active], belief.epsilon[active]) - 1.0 / belief.p_d[active]
+        )
         goal_direction = self.target - center
         rate = signed_cube_root_attraction(goal_direction, self.k1, self.linear_zone)
-        violated = q <= belief.epsilon
         if np.any(violated):
             rate = self._recovery_velocity(center, belief.mean[violated], goal_direction)
         else:
