@@ -47,6 +47,8 @@ from stt_drake.tube import TubeLaw, default_nu
 COUNTS = (10, 50, 200, 1000)
 #: Closed loops (scenario files under diagrams/).
 SCENARIOS = ("omni_cluttered_50", "uav_cluttered")
+#: The fixed-rate (real-time) tube's update rate the closed loops are also timed at (Hz).
+FIXED_RATE_HZ = 100.0
 DIAGRAMS = Path(__file__).resolve().parent.parent / "diagrams"
 
 #: The issue's targets on a 2-core machine (reported, not enforced).
@@ -272,8 +274,12 @@ def bench_controller(repeats: int) -> dict[str, Any]:
     return results
 
 
-def bench_closed_loop(name: str, repeats: int, duration: float | None = None) -> dict[str, Any]:
+def bench_closed_loop(
+    name: str, repeats: int, duration: float | None = None, update_rate_hz: float | None = None
+) -> dict[str, Any]:
     """Simulate diagrams/<name>.yaml with the invariant monitor on; real-time factors.
+    `update_rate_hz` replaces the scenario's tube update rate (0: continuous; the rate is
+    validated like one written in the file).
 
     Returns ``{"available": False, ...}`` when the scenario file does not exist.
     """
@@ -289,6 +295,11 @@ def bench_closed_loop(name: str, repeats: int, duration: float | None = None) ->
     scenario = load_scenario(path)
     if duration is not None:
         scenario.duration = min(scenario.duration, duration)
+    if update_rate_hz is not None:
+        from stt_drake.feasibility import validate_real_time
+
+        scenario.tube.update_rate_hz = update_rate_hz
+        validate_real_time(scenario)
     runs = []
     for _ in range(repeats):
         built = build_diagram(scenario)
@@ -444,7 +455,12 @@ def run_benchmark(
     load_before = os.getloadavg()
     tube = bench_tube_steps(counts, repeats)
     controller = bench_controller(repeats)
-    loops = {name: bench_closed_loop(name, loop_repeats, loop_duration) for name in SCENARIOS}
+    loops = {}
+    for name in SCENARIOS:  # the continuous loop, then the fixed-rate one, each scenario
+        loops[name] = bench_closed_loop(name, loop_repeats, loop_duration, 0.0)
+        loops[fixed_rate_name(name)] = bench_closed_loop(
+            name, loop_repeats, loop_duration, FIXED_RATE_HZ
+        )
     plot = scaling_plot(tube, counts, out_dir / "tube_step_scaling.png")
 
     def table(field: str, key: str) -> dict[str, dict[str, float]]:
@@ -465,6 +481,11 @@ def run_benchmark(
         name: (loop["realtime_factor"] if loop["available"] else "not available")
         for name, loop in loops.items()
     }
+    fixed_over_continuous = {
+        name: loops[fixed_rate_name(name)]["realtime_factor"] / loops[name]["realtime_factor"]
+        for name in SCENARIOS
+        if loops[name]["available"] and loops[fixed_rate_name(name)]["available"]
+    }
     result: dict[str, Any] = {
         "tube_step_us": table("typical", "kernel_us"),
         "baseline_tube_step_us": table("typical", "baseline_us"),
@@ -473,6 +494,7 @@ def run_benchmark(
         "worst_case_speedup_vs_baseline": table("worst", "speedup"),
         "controller_us": controller_us,
         "realtime_factor": realtime,
+        "fixed_rate_over_continuous": fixed_over_continuous,
         "derivative_evaluations_per_s": {
             name: loop.get("derivative_evaluations_per_s", "not available")
             for name, loop in loops.items()
@@ -493,6 +515,11 @@ def run_benchmark(
     }
     result["targets"] = _targets(result, counts)
     return result
+
+
+def fixed_rate_name(name: str) -> str:
+    """The closed-loop key of scenario `name` run with the fixed-rate tube."""
+    return f"{name}_fixed_rate_{FIXED_RATE_HZ:g}hz"
 
 
 def _version(package: str) -> str | None:
@@ -593,6 +620,11 @@ def format_table(result: dict[str, Any]) -> str:
             f"{loop['realtime_factor_cpu']:.1f}×), {loop['steps']} steps, "
             f"{loop['derivative_evaluations_per_s']:.0f} derivative evaluations/s, "
             f"guarantees {'hold' if loop['holds'] else 'VIOLATED'}"
+        )
+    for name, ratio in result["fixed_rate_over_continuous"].items():
+        lines.append(
+            f"  {name}: fixed-rate tube at {FIXED_RATE_HZ:g} Hz / continuous tube, real-time "
+            f"factor ratio {ratio:.2f}"
         )
     lines.append("")
     lines.append(f"4. scaling plot: {result['plot']}")

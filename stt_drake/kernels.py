@@ -39,6 +39,8 @@ import numpy as np
 from numba import njit
 from scipy import special
 
+from stt_drake.probability import PRUNE_HEADROOM_NU
+
 _JIT = {"cache": True, "error_model": "numpy", "nogil": True}
 
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
@@ -760,6 +762,44 @@ def _segment_avoid_lower_bound(
 
 
 @njit(**_JIT)
+def _segment_quantile_lower_bound(
+    start: np.ndarray,
+    end: np.ndarray,
+    mean: np.ndarray,
+    j: int,
+    sigma: float,
+    radius: float,
+    epsilon: float,
+    reach: float,
+    spread: float,
+    prune_above: float,
+) -> float:
+    """:func:`stt_drake.probability.segment_quantile_lower_bound` for obstacle j; where the
+    cheap bound σ·max(a − Φ⁻¹(ε), 0) already gives more than `prune_above`, that bound."""
+    n = start.shape[0]
+    length2 = 0.0
+    along = 0.0
+    for i in range(n):
+        chord = end[i] - start[i]
+        length2 += chord * chord
+        along += (mean[j, i] - start[i]) * chord
+    fraction = along / length2 if length2 > 0.0 else 0.0
+    fraction = min(max(fraction, 0.0), 1.0)
+    nearest = 0.0
+    for i in range(n):
+        d = start[i] + fraction * (end[i] - start[i]) - mean[j, i]
+        nearest += d * d
+    nearest = math.sqrt(nearest)
+    farthest = max(_distance(start, mean, j), _distance(end, mean, j))
+    offset = max(nearest - reach, 0.0) / sigma
+    penalty = spread * (farthest + reach)
+    cheap = (sigma * max(offset - ndtri(epsilon), 0.0) - penalty) / (1.0 + spread) - radius
+    if cheap > prune_above:
+        return cheap
+    return (sigma * chi_isf(epsilon, offset, n) - penalty) / (1.0 + spread) - radius
+
+
+@njit(**_JIT)
 def tube_advance(
     center: np.ndarray,
     mean: np.ndarray,
@@ -774,15 +814,19 @@ def tube_advance(
     circulation: np.ndarray,
     constants: np.ndarray,
     duration: float,
+    start_radius: float,
     max_attempts: int,
-) -> tuple[np.ndarray, np.ndarray, int]:
+) -> tuple[np.ndarray, np.ndarray, int, float, float]:
     """:meth:`stt_drake.tube.TubeLaw.advance` in one call (same steps, same rules):
     sub-steps of the law with the look-ahead bound over 2·duration, each keeping every
     positive gap at least half; then the segment certificate over one duration, pulled back
-    towards `center` until it holds. `constants` must skip the quantiles (prune_above = −∞).
+    towards `center` until it holds and its distance bound stays ≥ `start_radius` (NaN:
+    none); then the radius at both ends of the period. `constants` must skip the
+    quantiles of the law (prune_above = −∞).
 
     Returns:
-        (c_{k+1}, certified (m,) booleans, accepted sub-steps).
+        (c_{k+1}, certified (m,) booleans, accepted sub-steps, r at the start and at the
+        end of the period).
     """
     count, n = mean.shape
     k1 = constants[0]
@@ -855,7 +899,12 @@ def tube_advance(
             _distance(center, mean, j), sigma[j], radius[j] + r_min, reach1[j], spread1[j], n
         )
         must_hold[j] = start_q - epsilon[j] > 0.0
+    r_max = constants[2]
+    nu = constants[3]
+    prune_above = r_max + PRUNE_HEADROOM_NU / nu
     certified = np.empty(count, dtype=np.bool_)
+    distances = np.empty(count)
+    holds = False
     for _halving in range(60):
         holds = True
         for j in range(count):
@@ -863,13 +912,63 @@ def tube_advance(
                 center, position, mean, j, sigma[j], radius[j] + r_min, reach1[j], spread1[j]
             )
             certified[j] = lower - epsilon[j] > 0.0
-            if must_hold[j] and not certified[j]:
+            distances[j] = _segment_quantile_lower_bound(
+                center,
+                position,
+                mean,
+                j,
+                sigma[j],
+                radius[j],
+                epsilon[j],
+                reach1[j],
+                spread1[j],
+                prune_above,
+            )
+            fits = not (distances[j] < start_radius)  # NaN start radius: nothing to fit
+            if must_hold[j] and not (certified[j] and fits):
                 holds = False
         if holds:
-            return position, certified, accepted
+            break
         for i in range(n):
             position[i] = center[i] + 0.5 * (position[i] - center[i])
-    return center.copy(), must_hold, accepted
+    if not holds:
+        position = center.copy()
+        certified[:] = must_hold
+        for j in range(count):
+            distances[j] = _segment_quantile_lower_bound(
+                center,
+                center,
+                mean,
+                j,
+                sigma[j],
+                radius[j],
+                epsilon[j],
+                reach1[j],
+                spread1[j],
+                prune_above,
+            )
+    ahead = np.empty(count)
+    for j in range(count):
+        bound = _segment_quantile_lower_bound(
+            position,
+            position,
+            mean,
+            j,
+            sigma[j],
+            radius[j],
+            epsilon[j],
+            reach2[j],
+            spread2[j],
+            prune_above,
+        )
+        ahead[j] = min(bound, distances[j])
+    end_radius = soft_min_radius(ahead, r_max, nu)
+    smallest = math.inf
+    for j in range(count):
+        smallest = min(smallest, distances[j])
+    if start_radius <= smallest:  # False for NaN
+        return position, certified, accepted, start_radius, end_radius
+    return position, certified, accepted, soft_min_radius(distances, r_max, nu), end_radius
 
 
 @njit(**_JIT)

@@ -257,3 +257,39 @@ def segment_avoid_lower_bound(
     return noncentral_chi_sf(
         grown / sigma, np.maximum(nearest - reach, 0.0) / sigma, mean.shape[-1]
     )
+
+
+def segment_quantile_lower_bound(
+    start: np.ndarray,
+    end: np.ndarray,
+    mean: np.ndarray,
+    sigma: np.ndarray,
+    radius: np.ndarray,
+    epsilon: np.ndarray,
+    reach: np.ndarray,
+    spread: np.ndarray,
+) -> np.ndarray:
+    """A lower bound of d̂_j (eq. m_crv) at every point of the segment [start, end] and for
+    every belief reachable within the horizon of (reach, spread): the largest r with
+    P(‖x − O_j(t)‖ ≥ r_o_j + r) ≥ ε_j for all those x and beliefs.
+
+    By the coupling of :mod:`stt_drake.tube` the collision event at radius R is inside the
+    event at radius R(1 + γ) + γ(a_max + Δ) + Δ-shifted offset, so any R with
+    R(1 + γ) + γ(a_max + Δ) ≤ σ·s_ε(max(a_min − Δ, 0)/σ) is safe, s_ε the noncentral-χ upper
+    ε quantile: D_j = (σ s_ε − γ(a_max + Δ))/(1 + γ) − r_o_j. It exceeds r_min exactly when
+    :func:`segment_avoid_lower_bound` (with r_o + r_min) exceeds ε_j."""
+    mean = np.asarray(mean, dtype=float)
+    sigma = np.asarray(sigma, dtype=float)
+    start = np.asarray(start, dtype=float)
+    chord = np.asarray(end, dtype=float) - start
+    length2 = float(chord @ chord)
+    along = (mean - start) @ chord / length2 if length2 > 0.0 else np.zeros(len(mean))
+    closest = start + np.clip(along, 0.0, 1.0)[:, None] * chord
+    nearest = np.linalg.norm(closest - mean, axis=-1)
+    farthest = np.maximum(
+        np.linalg.norm(start - mean, axis=-1), np.linalg.norm(start + chord - mean, axis=-1)
+    )
+    epsilon = np.broadcast_to(np.asarray(epsilon, dtype=float), sigma.shape)
+    offset = np.maximum(nearest - reach, 0.0) / sigma
+    quantile = sigma * noncentral_chi_isf(epsilon, offset, mean.shape[-1])
+    return (quantile - spread * (farthest + reach)) / (1.0 + spread) - np.asarray(radius)

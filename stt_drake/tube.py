@@ -90,6 +90,7 @@ from stt_drake.probability import (
     period_avoid_probability,
     quantile_distance,
     segment_avoid_lower_bound,
+    segment_quantile_lower_bound,
 )
 
 
@@ -279,11 +280,17 @@ class FixedRateUpdate:
         certified: (m,) True where q_j(c(t), t) > ε_j is proven over the whole period;
             False where obstacle j is recovering (its belief left its rate bounds).
         substeps: accepted sub-steps of the law.
+        start_radius: r at the start of the period: the given radius, unless the belief
+            left its bounds (or this is the first update), when it drops to what the period
+            certifies.
+        end_radius: r at the end of the period (linear in between).
     """
 
     center: np.ndarray
     certified: np.ndarray
     substeps: int
+    start_radius: float
+    end_radius: float
 
 
 @dataclass(frozen=True)
@@ -380,6 +387,10 @@ class TubeLaw:
         return self._evaluate(
             center, belief, "pruned" if prune else "exact", circulation, inflation
         )
+
+    def switching_gains(self, center: np.ndarray, belief: ObstacleBelief) -> np.ndarray:
+        """θ_j at `center` (no quantile is computed)."""
+        return self._evaluate(center, belief, "rate", None, None).theta
 
     def _evaluate(
         self,
@@ -523,6 +534,7 @@ class TubeLaw:
         duration: float,
         bounds: BeliefRateBounds | None = None,
         circulation: np.ndarray | None = None,
+        radius: float = math.nan,
         max_attempts: int = 200,
     ) -> FixedRateUpdate:
         """Fixed-rate (real-time) update over one period h = `duration` with the belief
@@ -534,7 +546,12 @@ class TubeLaw:
         from overshooting η). A sub-step is accepted only if every positive gap
         Q^{2h}_j − ε_j stays at least half of what it was, else it is halved; after an
         accepted one the next may double. Then the segment from `center` to the result is
-        certified with Q^h and pulled back until it is.
+        certified with Q^h and pulled back until it is, and until its distance bound
+        (:func:`stt_drake.probability.segment_quantile_lower_bound` over the period) stays
+        at least `radius`, the tube radius at the start of the period (NaN: none yet). The
+        radius moves linearly over the period from its start value to the soft-min of the
+        segment's and the look-ahead's distance bounds at the new centre, so the whole ball
+        is certified too (module docstring).
 
         One call of the compiled :func:`stt_drake.kernels.tube_advance` for n ≤ 3 (unless
         the numpy path is selected); the code below is its reference.
@@ -550,7 +567,7 @@ class TubeLaw:
         if kernels is not None and belief.dimension in COMPILED_DIMENSIONS:
             k2, k3, constants = self._gains_for(count)
             _reach, _spread, axes = _kernel_extras(belief.mean.shape, circulation, None)
-            position, certified, accepted = kernels.tube_advance(
+            position, certified, accepted, start_radius, end_radius = kernels.tube_advance(
                 center,
                 belief.mean,
                 belief.sigma,
@@ -564,9 +581,10 @@ class TubeLaw:
                 axes,
                 constants["rate"],
                 float(duration),
+                float(radius),
                 max_attempts,
             )
-            return FixedRateUpdate(position, certified, accepted)
+            return FixedRateUpdate(position, certified, accepted, start_radius, end_radius)
         look_ahead = bounds.inflation(belief.sigma, 2.0 * duration)
         position, evaluation = (
             center,
@@ -597,18 +615,35 @@ class TubeLaw:
             - belief.epsilon
         )
         must_hold = start_gap > 0.0
+
+        def distance_bound(
+            start: np.ndarray, end: np.ndarray, inflation: tuple[np.ndarray, np.ndarray]
+        ) -> np.ndarray:
+            return segment_quantile_lower_bound(
+                start, end, belief.mean, belief.sigma, belief.radius, belief.epsilon, *inflation
+            )
+
         for _halving in range(60):
             lower = segment_avoid_lower_bound(
                 center, position, belief.mean, belief.sigma, safety_radius, *period
             )
+            distances = distance_bound(center, position, period)
             certified = lower - belief.epsilon > 0.0
-            if np.all(certified[must_hold]):
+            fits = not np.isfinite(radius) or np.all(distances[must_hold] >= radius)
+            if np.all(certified[must_hold]) and fits:
                 break
             position = center + 0.5 * (position - center)
         else:
             position = center
             certified = must_hold
-        return FixedRateUpdate(position, certified, accepted)
+            distances = distance_bound(center, center, period)
+        ahead = distance_bound(position, position, look_ahead)
+        end_radius = self.radius(np.minimum(distances, ahead))
+        if np.isfinite(radius) and radius <= np.min(distances, initial=np.inf):
+            start_radius = float(radius)  # continuous: the period starts where the last ended
+        else:  # the first update, or a belief that left its bounds: the radius drops now
+            start_radius = self.radius(distances)
+        return FixedRateUpdate(position, certified, accepted, start_radius, end_radius)
 
     def _displacement(
         self, center: np.ndarray, evaluation: TubeEvaluation, belief: ObstacleBelief, step: float

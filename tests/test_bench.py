@@ -94,6 +94,12 @@ def test_bench_json_report(tmp_path, capsys):
             assert loop["derivative_evaluations_per_s"] > 0.0
         else:
             assert result["realtime_factor"][name] == "not available"
+        fixed = loops[bench.fixed_rate_name(name)]  # the same loop with a 100 Hz tube
+        if fixed["available"]:
+            assert fixed["holds"]
+            assert fixed["sim_time_s"] == pytest.approx(1.0)
+            ratio = fixed["realtime_factor"] / loop["realtime_factor"]
+            assert result["fixed_rate_over_continuous"][name] == pytest.approx(ratio)
     assert set(result["targets"]) >= {"tube_step_50_2d_us", "speedup_50_3d",
                                       "controller_stage1_us"}
     assert (tmp_path / "tube_step_scaling.png").stat().st_size > 1000

@@ -171,28 +171,40 @@ def crossing_obstacle(t: float) -> np.ndarray:
 def test_fixed_rate_update_keeps_q_above_epsilon_between_updates(rate_hz, compiled):
     """The old update held the belief frozen over the period and let an approaching obstacle
     drive q below ε between updates. Now q(c(t), t) > ε at every instant (checked on a
-    dense grid with scipy, c(t) the interpolated output) and |ċ| ≤ v_c."""
+    dense grid with scipy, c(t) the interpolated output), |ċ| ≤ v_c, and the interpolated
+    radius r(t) is continuous across updates, positive and never above the exact d̂ at
+    (c(t), belief(t)) (scipy's ncx2 quantile), so the whole ball keeps P ≥ ε."""
     h = 1.0 / rate_hz
     speed = float(np.linalg.norm([0.6, 1.04]))
     tube = law([4.0, 0.0], max_center_speed=2.5)
     bounds = BeliefRateBounds(np.array([speed]), np.zeros(1))
     sigma, radius, epsilon = 0.08, 0.25, 0.95
-    center, worst, acted = np.zeros(2), np.inf, 0
+    center, worst, worst_radius, acted = np.zeros(2), np.inf, np.inf, 0
+    tube_radius = np.nan
     with backend.pure_numpy(not compiled):
         for k in range(int(10.0 / h)):
             t_k = k * h
             now = belief(crossing_obstacle(t_k), sigma, radius, epsilon)
-            update = tube.advance(center, now, h, bounds)
+            update = tube.advance(center, now, h, bounds, radius=tube_radius)
             assert update.certified.all()
             assert np.linalg.norm(update.center - center) <= 2.5 * h * (1 + 1e-12)
+            if k > 0:
+                assert update.start_radius == tube_radius  # no jump of r at the update
             acted += tube.evaluate(center, now).theta[0] > 0
             for s in np.linspace(0.0, 1.0, 11):
                 c = center + s * (update.center - center)
-                q = q_true(c, crossing_obstacle(t_k + s * h), sigma, radius + tube.r_min)
+                mean = crossing_obstacle(t_k + s * h)
+                q = q_true(c, mean, sigma, radius + tube.r_min)
                 worst = min(worst, q - epsilon)
-            center = update.center
+                r = update.start_radius + s * (update.end_radius - update.start_radius)
+                lam = float(np.sum((c - mean) ** 2)) / sigma**2
+                d_hat = sigma * np.sqrt(ncx2.ppf(1.0 - epsilon, 2, lam)) - radius
+                worst_radius = min(worst_radius, d_hat - r)
+                assert r > 0.0
+            center, tube_radius = update.center, update.end_radius
     assert acted > 0  # the obstacle really came close
     assert worst > 0.0
+    assert worst_radius >= -1e-9  # r ≤ d̂ up to scipy's quantile accuracy
     assert np.linalg.norm(center - tube.target) < 0.05  # and the tube still got there
 
 

@@ -35,15 +35,18 @@ class SpatiotemporalTube(LeafSystem):
       (|ċ| ≤ max_center_speed, recovery where q_j ≤ ε_j) integrated by the Simulator with
       error control and a bounded max step (the scenarios' default SimulatorConfig);
       recovery is q_j(c) ≤ ε_j.
-    * fixed rate (``update_period=h``): every h seconds :meth:`TubeLaw.advance` computes
-      the next centre from the belief sampled at the update, the way it runs on a robot;
-      the output moves linearly from the centre at the update to that next centre over
-      the period, and q_j(c(t), t) > ε_j is certified for the whole period from
-      `rate_bounds` (required in this mode: the guarantee needs to know how fast each
-      belief may move). Recovery is "period not certified for obstacle j".
+    * fixed rate (``update_period=h``): at initialisation and then every h seconds
+      :meth:`TubeLaw.advance` computes the next centre and radius from the belief sampled
+      at the update, the way it runs on a robot; the output moves linearly from the values
+      at the update to those at the end of the period, and q_j(c(t), t) > ε_j and
+      r(t) ≤ d̂_j(c(t), t) are certified for the whole period from `rate_bounds` (required
+      in this mode: the guarantee needs to know how fast each belief may move). Between
+      updates the output costs an interpolation, no probability. Recovery is "period not
+      certified for obstacle j".
 
-    The radius is always evaluated at the current centre and belief, so r ≤ min_j d̂_j at
-    every instant.
+    In continuous time the radius is evaluated at the current centre and belief, so
+    r ≤ min_j d̂_j at every instant; at a fixed rate it is a certified lower bound of that.
+    `diagnostics` always holds the law at the current centre and belief.
 
     In 3D the null-space directions follow circulation axes held in the Context (chosen
     when an obstacle activates, carried while it stays active; :func:`carry_circulation`),
@@ -95,16 +98,18 @@ class SpatiotemporalTube(LeafSystem):
             if circulates:
                 self.DeclarePerStepDiscreteUpdateEvent(self._carry_circulation)
         else:
-            # [centre at the last update, centre at the end of its period, its time]
-            self._state_index = self.DeclareDiscreteState(
-                np.concatenate([initial_center, initial_center, [0.0]])
-            )
+            # [centre and radius at the last update, at the end of its period, its time]
+            self._state_index = self.DeclareDiscreteState(_period_state(initial_center))
             self._recovery_index = self.DeclareDiscreteState(np.zeros(obstacle_count))
-            self.DeclarePeriodicDiscreteUpdateEvent(update_period, 0.0, self._discrete_update)
+            # The first update at initialisation (t = 0), then every period from t = h.
+            self.DeclareInitializationDiscreteUpdateEvent(self._discrete_update)
+            self.DeclarePeriodicDiscreteUpdateEvent(
+                update_period, update_period, self._discrete_update
+            )
             tickets = {self.xd_ticket(), self.time_ticket()}
         self._evaluation = self.DeclareCacheEntry(
             description="tube law evaluation",
-            # (TubeEvaluation, the `tube` port value [c, r])
+            # (TubeEvaluation, [c, r] with the law's exact radius)
             value_producer=ValueProducer(
                 allocate=AbstractValue.Make(object()).Clone, calc=self._calc_evaluation
             ),
@@ -112,7 +117,10 @@ class SpatiotemporalTube(LeafSystem):
         )
         depends = {self._evaluation.ticket()}
         self.DeclareVectorOutputPort(
-            "tube", self._dimension + 1, self._calc_tube, prerequisites_of_calc=depends
+            "tube",
+            self._dimension + 1,
+            self._calc_tube,
+            prerequisites_of_calc=tickets | {self.all_input_ports_ticket()},
         )
         self.DeclareVectorOutputPort(
             "diagnostics", 3 * obstacle_count, self._calc_diagnostics, prerequisites_of_calc=depends
@@ -132,10 +140,18 @@ class SpatiotemporalTube(LeafSystem):
         """The tube centre c(t) in `context` (interpolated within a fixed-rate period)."""
         if self.update_period is None:
             return context.get_continuous_state_vector().CopyToVector()
-        state = context.get_discrete_state(self._state_index).CopyToVector()
+        return self._interpolated(context)[:-1]
+
+    def _interpolated(self, context: Context) -> np.ndarray:
+        """[c(t), r(t)] of a fixed-rate tube: linear from the values at the last update to
+        those at the end of its period (r is NaN before the first update)."""
+        state = context.get_discrete_state(self._state_index).value()
         n = self._dimension
-        fraction = min(max((context.get_time() - state[-1]) / self.update_period, 0.0), 1.0)
-        return state[:n] + fraction * (state[n : 2 * n] - state[:n])
+        fraction = min(max((context.get_time() - state[2 * n]) / self.update_period, 0.0), 1.0)
+        value = np.empty(n + 1)
+        value[:n] = state[:n] + fraction * (state[n : 2 * n] - state[:n])
+        value[n] = state[2 * n + 1] + fraction * (state[2 * n + 2] - state[2 * n + 1])
+        return value
 
     def set_center(self, context: Context, center: np.ndarray) -> None:
         """Place the centre at `center` in `context` (held there until the next update in
@@ -144,8 +160,7 @@ class SpatiotemporalTube(LeafSystem):
         if self.update_period is None:
             context.SetContinuousState(center)
             return
-        state = np.concatenate([center, center, [context.get_time()]])
-        context.SetDiscreteState(self._state_index, state)
+        context.SetDiscreteState(self._state_index, _period_state(center, context.get_time()))
 
     def _circulation(self, context: Context) -> np.ndarray | None:
         if self._circulation_index is None:
@@ -206,6 +221,11 @@ class SpatiotemporalTube(LeafSystem):
         return self._evaluation.Eval(context)[0]
 
     def _calc_tube(self, context: Context, output: BasicVector) -> None:
+        if self.update_period is not None:
+            tube = self._interpolated(context)
+            if not math.isnan(tube[-1]):  # certified at the update (before it: the law's)
+                output.SetFromVector(tube)
+                return
         output.SetFromVector(self._evaluation.Eval(context)[1])
 
     def _calc_diagnostics(self, context: Context, output: BasicVector) -> None:
@@ -229,41 +249,57 @@ class SpatiotemporalTube(LeafSystem):
         if self.update_period is None:  # a fixed-rate tube has no continuous state
             derivatives.get_mutable_vector().SetFromVector(self.evaluation(context).center_rate)
 
-    def _carried_axes(
-        self, context: Context, center: np.ndarray, law: TubeLaw, theta: np.ndarray
-    ) -> np.ndarray:
-        """The circulation axes after this step (:func:`carry_circulation`) at `center`,
-        with θ_j evaluated there."""
-        mean = self._belief(context).mean
+    def _carry(
+        self,
+        context: Context,
+        discrete_state: DiscreteValues,
+        center: np.ndarray,
+        belief: ObstacleBelief,
+        theta: np.ndarray,
+    ) -> bool:
+        """Write the circulation axes after this step (:func:`carry_circulation`) at
+        `center` with θ_j evaluated there; False (nothing written) when no obstacle is
+        active and no axis is held."""
         axes = self._circulation(context)
-        return carry_circulation(axes, center, mean, theta > 0.0, law.target - center)
+        active = theta > 0.0
+        if not np.any(active) and not np.any(axes):
+            return False
+        target = self._law_in(context).target
+        carried = carry_circulation(axes, center, belief.mean, active, target - center)
+        discrete_state.set_value(self._circulation_index, carried.ravel())
+        return True
 
     def _carry_circulation(self, context: Context, discrete_state: DiscreteValues) -> EventStatus:
         center, theta = self.center(context), self.evaluation(context).theta
-        if not np.any(theta > 0.0) and not np.any(self._circulation(context)):
-            return EventStatus.DidNothing()  # nothing active, nothing held: no state change
-        axes = self._carried_axes(context, center, self._law_in(context), theta)
-        discrete_state.set_value(self._circulation_index, axes.ravel())
-        return EventStatus.Succeeded()
+        if self._carry(context, discrete_state, center, self._belief(context), theta):
+            return EventStatus.Succeeded()
+        return EventStatus.DidNothing()  # nothing active, nothing held: no state change
 
     def _discrete_update(self, context: Context, discrete_state: DiscreteValues) -> None:
         law = self._law_in(context)
+        belief = self._belief(context)
         state = context.get_discrete_state(self._state_index).CopyToVector()
         n = self._dimension
         reached = state[n : 2 * n]  # the centre at this update (end of the last period)
         update = law.advance(
             reached,
-            self._belief(context),
+            belief,
             self.update_period,
             self._rate_bounds,
             self._circulation(context),
+            radius=state[2 * n + 2],
         )
+        period = [context.get_time(), update.start_radius, update.end_radius]
         discrete_state.set_value(
-            self._state_index, np.concatenate([reached, update.center, [context.get_time()]])
+            self._state_index, np.concatenate([reached, update.center, period])
         )
         discrete_state.set_value(self._recovery_index, (~update.certified) * 1.0)
         if self._circulation_index is not None:
-            belief, axes = self._belief(context), self._circulation(context)
-            theta = law.evaluate(update.center, belief, circulation=axes).theta
-            axes = self._carried_axes(context, update.center, law, theta)
-            discrete_state.set_value(self._circulation_index, axes.ravel())
+            theta = law.switching_gains(update.center, belief)
+            self._carry(context, discrete_state, update.center, belief, theta)
+
+
+def _period_state(center: np.ndarray, time: float = 0.0) -> np.ndarray:
+    """A fixed-rate tube's state with the centre held at `center` and no radius yet:
+    [c at the update, c at the end of the period, update time, r there, r at the end]."""
+    return np.concatenate([center, center, [time, math.nan, math.nan]])
