@@ -650,11 +650,14 @@ def tube_step(
             qj = chi_sf((radius[j] + r_min) / s, a, n)
         q[j] = qj
         eps = epsilon[j]
-        lower = s * max(a - ndtri(eps), 0.0) - radius[j]
-        if lower > prune_above:
-            d_hat[j] = lower
+        if prune_above == -math.inf:  # ċ, q, θ only: d̂ (and so r) not wanted
+            d_hat[j] = math.nan
         else:
-            d_hat[j] = s * chi_isf(eps, a, n) - radius[j]
+            lower = s * max(a - ndtri(eps), 0.0) - radius[j]
+            if lower > prune_above:
+                d_hat[j] = lower
+            else:
+                d_hat[j] = s * chi_isf(eps, a, n) - radius[j]
         if qj <= p_d[j]:
             th = 1.0 / qj - 1.0 / p_d[j]
             theta[j] = th

@@ -341,7 +341,8 @@ class TubeLaw:
     def _kernel_constants(self) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         """(k2, k3, constants by pruning mode) as float arrays for the compiled kernel
         (layout: :data:`stt_drake.kernels.TUBE_CONSTANTS`, then η); once per law. Modes:
-        "pruned", "exact" (every quantile) and "rate" (no quantile: ċ, q, θ only)."""
+        "pruned", "exact" (every quantile) and "rate" (ċ, q, θ only; the compiled kernel
+        then returns NaN for d̂ and r)."""
         target = np.asarray(self.target, dtype=float).ravel()
 
         def constants(prune_above: float) -> np.ndarray:

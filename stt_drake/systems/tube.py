@@ -99,8 +99,13 @@ class SpatiotemporalTube(LeafSystem):
                 self.DeclarePerStepDiscreteUpdateEvent(self._carry_circulation)
         else:
             # [centre and radius at the last update, at the end of its period, its time]
-            self._state_index = self.DeclareDiscreteState(_period_state(initial_center))
-            self._recovery_index = self.DeclareDiscreteState(np.zeros(obstacle_count))
+            self._state_index = self.DeclareDiscreteState(
+                _period_state(initial_center, obstacle_count)
+            )
+            n = self._dimension
+            # Indices of [c, r] at the update and at the end of the period in that state.
+            self._at_update = np.array([*range(n), 2 * n + 1])
+            self._at_end = np.array([*range(n, 2 * n), 2 * n + 2])
             # The first update at initialisation (t = 0), then every period from t = h.
             self.DeclareInitializationDiscreteUpdateEvent(self._discrete_update)
             self.DeclarePeriodicDiscreteUpdateEvent(
@@ -146,12 +151,10 @@ class SpatiotemporalTube(LeafSystem):
         """[c(t), r(t)] of a fixed-rate tube: linear from the values at the last update to
         those at the end of its period (r is NaN before the first update)."""
         state = context.get_discrete_state(self._state_index).value()
-        n = self._dimension
-        fraction = min(max((context.get_time() - state[2 * n]) / self.update_period, 0.0), 1.0)
-        value = np.empty(n + 1)
-        value[:n] = state[:n] + fraction * (state[n : 2 * n] - state[:n])
-        value[n] = state[2 * n + 1] + fraction * (state[2 * n + 2] - state[2 * n + 1])
-        return value
+        fraction = (context.get_time() - state[2 * self._dimension]) / self.update_period
+        fraction = min(max(fraction, 0.0), 1.0)
+        start = state[self._at_update]
+        return start + fraction * (state[self._at_end] - start)
 
     def set_center(self, context: Context, center: np.ndarray) -> None:
         """Place the centre at `center` in `context` (held there until the next update in
@@ -160,7 +163,8 @@ class SpatiotemporalTube(LeafSystem):
         if self.update_period is None:
             context.SetContinuousState(center)
             return
-        context.SetDiscreteState(self._state_index, _period_state(center, context.get_time()))
+        state = _period_state(center, self._count, context.get_time())
+        context.SetDiscreteState(self._state_index, state)
 
     def _circulation(self, context: Context) -> np.ndarray | None:
         if self._circulation_index is None:
@@ -238,7 +242,8 @@ class SpatiotemporalTube(LeafSystem):
 
     def _calc_recovery(self, context: Context, output: BasicVector) -> None:
         if self.update_period is not None:
-            output.SetFromVector(context.get_discrete_state(self._recovery_index).value())
+            state = context.get_discrete_state(self._state_index).value()
+            output.SetFromVector(state[2 * self._dimension + 3 :])
             return
         epsilon = self._belief(context).epsilon
         output.SetFromVector((self.evaluation(context).avoid_probability <= epsilon) * 1.0)
@@ -289,17 +294,18 @@ class SpatiotemporalTube(LeafSystem):
             self._circulation(context),
             radius=state[2 * n + 2],
         )
-        period = [context.get_time(), update.start_radius, update.end_radius]
-        discrete_state.set_value(
-            self._state_index, np.concatenate([reached, update.center, period])
-        )
-        discrete_state.set_value(self._recovery_index, (~update.certified) * 1.0)
+        state[:n] = reached
+        state[n : 2 * n] = update.center
+        state[2 * n : 2 * n + 3] = context.get_time(), update.start_radius, update.end_radius
+        state[2 * n + 3 :] = ~update.certified
+        discrete_state.set_value(self._state_index, state)
         if self._circulation_index is not None:
             theta = law.switching_gains(update.center, belief)
             self._carry(context, discrete_state, update.center, belief, theta)
 
 
-def _period_state(center: np.ndarray, time: float = 0.0) -> np.ndarray:
-    """A fixed-rate tube's state with the centre held at `center` and no radius yet:
-    [c at the update, c at the end of the period, update time, r there, r at the end]."""
-    return np.concatenate([center, center, [time, math.nan, math.nan]])
+def _period_state(center: np.ndarray, count: int, time: float = 0.0) -> np.ndarray:
+    """A fixed-rate tube's state with the centre held at `center`, no radius yet and
+    nothing recovering: [c at the update, c at the end of the period, update time, r there,
+    r at the end, one recovery flag per obstacle (1 = not certified)]."""
+    return np.concatenate([center, center, [time, math.nan, math.nan], np.zeros(count)])
