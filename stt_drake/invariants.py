@@ -162,6 +162,76 @@ class InvariantTracker:
         return {name: record.as_dict() for name, record in self.records.items()}
 
 
+@dataclass(frozen=True)
+class ReachStory:
+    """When the tube entered and left the target set over a run (logged samples).
+
+    Attributes:
+        first_entry_s: the first sample time with Γ(t) ⊂ T, None if never.
+        entries_s: every sample time at which Γ went from outside T to inside (the first
+            sample counts as an entry when Γ starts inside).
+        exits_s: every sample time at which Γ went from inside T to outside (the first
+            sample outside).
+        final_entry_s: t_c of guarantee 4, the entry after which Γ stays inside T to the
+            end; None if the run ends outside (or, for a task sequence, not in its last task).
+    """
+
+    first_entry_s: float | None
+    entries_s: list[float]
+    exits_s: list[float]
+    final_entry_s: float | None
+
+    def as_dict(self) -> dict[str, float | list[float] | None]:
+        return {
+            "first_entry_s": self.first_entry_s,
+            "entries_s": list(self.entries_s),
+            "exits_s": list(self.exits_s),
+            "final_entry_s": self.final_entry_s,
+        }
+
+
+def reach_story(
+    t: np.ndarray,
+    center: np.ndarray,
+    radius: np.ndarray,
+    target: np.ndarray,
+    target_set_radius: float,
+    final_target: np.ndarray | None = None,
+) -> ReachStory:
+    """Entries into and exits from the target set T = B(η, R_T), sample by sample.
+
+    Γ(t) = B(c, r) lies in T iff ‖c − η‖ + r ≤ R_T (up to HOLDS_TOLERANCE).
+
+    Args:
+        t: (T,) sample times.
+        center: (T, n) tube centres c.
+        radius: (T,) tube radii r.
+        target: (n,) η, or (T, n) the target active at each sample (a task sequence).
+        target_set_radius: R_T.
+        final_target: with per-sample targets, the sequence's last target: the run has a
+            final entry only if it ends in that task (None: no such condition).
+    """
+    t = np.asarray(t, dtype=float)
+    target = np.asarray(target, dtype=float)
+    gap = np.linalg.norm(np.asarray(center, dtype=float) - target, axis=-1) + np.asarray(
+        radius, dtype=float
+    )
+    inside = gap <= target_set_radius + HOLDS_TOLERANCE
+    previous = np.zeros_like(inside)  # inside at the sample before (none before the first)
+    previous[1:] = inside[:-1]
+    entries = t[inside & ~previous].tolist()
+    exits = t[~inside & previous].tolist()
+    ends_inside = bool(inside.size and inside[-1])
+    if ends_inside and final_target is not None and target.ndim == 2:
+        ends_inside = bool(np.array_equal(target[-1], np.asarray(final_target, dtype=float)))
+    return ReachStory(
+        first_entry_s=entries[0] if entries else None,
+        entries_s=entries,
+        exits_s=exits,
+        final_entry_s=entries[-1] if ends_inside else None,
+    )
+
+
 def tube_reach_time(
     t: np.ndarray,
     center: np.ndarray,
@@ -169,13 +239,7 @@ def tube_reach_time(
     target: np.ndarray,
     target_set_radius: float,
 ) -> float | None:
-    """t_c of guarantee 4: the first sample time from which Γ(t) ⊂ T holds to the end.
-
-    Γ(t) = B(c, r) lies in T = B(η, R_T) iff ‖c − η‖ + r ≤ R_T (up to HOLDS_TOLERANCE).
-    None if it does not hold at the last sample.
-    """
-    inside = np.linalg.norm(center - target, axis=1) + radius <= target_set_radius + HOLDS_TOLERANCE
-    if not inside.size or not inside[-1]:
-        return None
-    outside = np.flatnonzero(~inside)
-    return float(t[0 if outside.size == 0 else outside[-1] + 1])
+    """t_c of guarantee 4: the first sample time from which Γ(t) ⊂ T holds to the end
+    (:attr:`ReachStory.final_entry_s` of :func:`reach_story`); None if it does not hold at
+    the last sample."""
+    return reach_story(t, center, radius, target, target_set_radius).final_entry_s

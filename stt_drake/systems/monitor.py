@@ -1,7 +1,9 @@
-"""InvariantMonitor: evaluates every guarantee during a run, and the Simulator hook."""
+"""InvariantMonitor: evaluates every guarantee during a run, and the Simulator hook (which
+also runs the step-rate watchdog)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 from pydrake.common.value import AbstractValue
@@ -16,6 +18,91 @@ from pydrake.systems.framework import (
 
 from stt_drake.belief import belief_size
 from stt_drake.invariants import INVARIANT_NAMES, InvariantTracker, evaluate_invariants_packed
+from stt_drake.scenario import ScenarioError
+
+#: Default step-rate limit L (integrator steps per simulated second) of the watchdog, used
+#: when a scenario's ``max_steps_per_second`` is 0. Chosen so that no scenario here runs
+#: slower than 0.05× real time: L × (worst wall cost of one step) ≤ 20 s of wall time per
+#: simulated second. Measured with drake 1.51.1 on a shared 2-core machine (load ≈ 2), as
+#: wall time per step over 500-step windows: the arm is the most expensive plant, worst
+#: window 3.1 ms/step in franka_disturbance (2.8 ms in franka_pick_place_case1, mean 2.4),
+#: omni_cluttered_50 0.8 ms/step; a stalling integrator costs more per step (rejected trial
+#: steps): 4.7 ms/step for the arm, 1.0 ms for the omni base (chattering plant inputs).
+#: 20 s / 4.7 ms ≈ 4250, rounded down to 4000. In normal operation no scenario in
+#: diagrams/ exceeds 500 steps per simulated second in any window (worst: uav_paper, 494
+#: in its second window; all others 167-246), so the limit leaves a factor of 8.
+DEFAULT_MAX_STEPS_PER_SECOND = 4000.0
+
+#: The watchdog judges the step rate over windows of at least this many steps.
+WATCHDOG_WINDOW_STEPS = 500
+
+
+def step_rate_limit(max_steps_per_second: float) -> float:
+    """The watchdog limit for a scenario's ``max_steps_per_second`` (0: the default);
+    ScenarioError if it is negative or not finite."""
+    limit = float(max_steps_per_second)
+    if not (math.isfinite(limit) and limit >= 0.0):
+        raise ScenarioError(
+            "scenario.max_steps_per_second: must be finite and ≥ 0 (steps per simulated "
+            f"second; 0 = the default {DEFAULT_MAX_STEPS_PER_SECOND:g}) (got {limit!r})"
+        )
+    return limit if limit > 0.0 else DEFAULT_MAX_STEPS_PER_SECOND
+
+
+class StepRateWatchdog:
+    """Ends a run whose integrator stalls: too many steps per simulated second.
+
+    :meth:`step` is called after every Simulator step (and once at initialisation). Steps
+    are counted in windows; once a window holds ≥ `window_steps` steps, its rate = steps /
+    simulated time elapsed is compared with `limit` (a window that spans no simulated time
+    at all — steps of 1e-13 s — always trips), then a new window starts. Pure Python: the
+    Drake side is :meth:`InvariantMonitor.attach`.
+
+    Attributes:
+        limit: the largest admissible rate, steps per simulated second.
+        window_steps: the number of steps a window needs before it is judged.
+        last_time: the simulated time of the last completed step (None before the first).
+        max_rate: the highest rate of any judged window so far (0 before the first).
+        message: why the watchdog tripped, None while it has not.
+    """
+
+    def __init__(self, limit: float, window_steps: int = WATCHDOG_WINDOW_STEPS) -> None:
+        if not limit > 0.0 or window_steps < 1:
+            raise ValueError(
+                f"StepRateWatchdog: need limit > 0 and window_steps ≥ 1 (got {limit}, "
+                f"{window_steps})"
+            )
+        self.limit = float(limit)
+        self.window_steps = int(window_steps)
+        self.last_time: float | None = None
+        self.max_rate = 0.0
+        self.message: str | None = None
+        self._window_start = 0.0
+        self._window_count = 0
+
+    def step(self, t: float) -> str | None:
+        """Count a step that ended at simulated time t; return the stop message if the
+        window it completes is too fast for the limit."""
+        t = float(t)
+        if self.last_time is None:  # the initialisation call: the first window opens here
+            self.last_time = self._window_start = t
+            return None
+        self.last_time = t
+        self._window_count += 1
+        if self._window_count < self.window_steps:
+            return None
+        elapsed = t - self._window_start
+        rate = self._window_count / elapsed if elapsed > 0.0 else math.inf
+        self.max_rate = max(self.max_rate, rate)
+        if rate > self.limit:
+            self.message = (
+                f"step-rate watchdog: the integrator took {self._window_count} steps in "
+                f"{elapsed:.3g} s of simulated time ({rate:.4g} steps/s > limit "
+                f"{self.limit:g}) at t = {t:.6g} s"
+            )
+            return self.message
+        self._window_start, self._window_count = t, 0
+        return None
 
 
 class InvariantMonitor(LeafSystem):
@@ -78,20 +165,32 @@ class InvariantMonitor(LeafSystem):
         output.SetFromVector(self._sample.Eval(context).tube_avoid_probability)
 
     def attach(
-        self, simulator: Simulator, tracker: InvariantTracker, strict: bool
+        self,
+        simulator: Simulator,
+        tracker: InvariantTracker,
+        strict: bool,
+        watchdog: StepRateWatchdog | None = None,
     ) -> Callable[[Context], EventStatus]:
-        """Install a Simulator monitor that folds every step's margins into `tracker`.
+        """Install a Simulator monitor that folds every step's margins into `tracker` and
+        counts the step in `watchdog`.
 
         In strict mode the first violation stops the run: ``AdvanceTo`` raises a
-        RuntimeError whose message names the invariant, the time and the margin.
+        RuntimeError whose message names the invariant, the time and the margin. A tripped
+        watchdog ends the run early: ``AdvanceTo`` returns a status whose reason is
+        ``kReachedTerminationCondition``, with `watchdog.message`.
         """
 
         def monitor(root_context: Context) -> EventStatus:
             context = self.GetMyContextFromRoot(root_context)
-            message = tracker.update(context.get_time(), self.margins_port.Eval(context))
+            t = context.get_time()
+            message = tracker.update(t, self.margins_port.Eval(context))
             if strict and message is not None:
                 # Failed(None, ...): passing a Python LeafSystem here segfaults (DRAKE_NOTES).
                 return EventStatus.Failed(None, message)
+            if watchdog is not None:
+                stop = watchdog.step(t)
+                if stop is not None:  # None as the system: see above
+                    return EventStatus.ReachedTermination(None, stop)
             return EventStatus.DidNothing()
 
         simulator.set_monitor(monitor)

@@ -1,0 +1,205 @@
+"""What happened during a run beyond the guarantees: the assumptions the scenario broke,
+the belief discontinuities and the tube's recovery episodes (metrics.json keys
+`assumptions`, `belief_discontinuities` and `recovery`; the reach story is
+:func:`stt_drake.invariants.reach_story`).
+
+Pure numpy on the run log (:func:`stt_drake.run.collect_log` layout, samples first), except
+:func:`target_separation_violations`, which reads the scenario before a run.
+
+Assumption 3.1 of the paper: after some time t_1, P(‖c(t) − O_j(t)‖ ≥ r_o_j + r_min) ≥ p_d_j
+for every obstacle j and t ≥ t_1 — the obstacles eventually leave the tube's centre, in
+particular the target, alone. The tube needs it to stay in the target set; a scenario that
+breaks it can make the tube leave T again after t_c.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from stt_drake.belief import record_size
+from stt_drake.probability import avoid_probability
+from stt_drake.scenario import Scenario
+
+#: Relative slack on the rate bounds when looking for a belief discontinuity (a smooth
+#: motion at exactly its bound must not count).
+RATE_SLACK = 1e-6
+#: Absolute slack on a mean change (m) and on a σ change (m) between two samples.
+MEAN_SLACK_M = 1e-9
+SIGMA_SLACK_M = 1e-12
+
+
+def _belief_table(log: Mapping[str, np.ndarray]) -> tuple[np.ndarray, int]:
+    """The logged belief as (T, m, n + 4) records, and n."""
+    n = int(log["dimension"])
+    belief = np.asarray(log["belief"], dtype=float)
+    record = record_size(n)
+    return belief.reshape(len(log["t"]), belief.shape[-1] // record, record), n
+
+
+def belief_discontinuities(log: Mapping[str, np.ndarray]) -> list[dict[str, Any]]:
+    """Belief jumps between consecutive samples k − 1, k that the motion model cannot make.
+
+    Obstacle j jumps when ‖μ_k − μ_{k−1}‖ > v̄_j·Δt·(1 + RATE_SLACK) + MEAN_SLACK_M or
+    |σ_k − σ_{k−1}| > s̄_j·Δt·(1 + RATE_SLACK) + SIGMA_SLACK_M, with v̄_j, s̄_j the logged
+    `mean_speed_bound` and `sigma_rate_bound` (m/s, steps excluded).
+
+    Returns:
+        One record per jump, in time order: `t` (t_k), `obstacle` (j), `mean_jump_m`
+        (‖Δμ‖), `sigma_jump_m` (Δσ, signed), `q_before` and `q_after` (the tube's
+        q_j(c) = `avoid_probability` at k − 1 and k).
+    """
+    t = np.asarray(log["t"], dtype=float)
+    if t.size < 2:
+        return []
+    table, n = _belief_table(log)
+    mean, sigma = table[:, :, :n], table[:, :, n]
+    dt = np.diff(t)[:, None]
+    mean_jump = np.linalg.norm(np.diff(mean, axis=0), axis=2)
+    sigma_jump = np.diff(sigma, axis=0)
+    mean_bound = np.asarray(log["mean_speed_bound"], dtype=float)[None, :]
+    sigma_bound = np.asarray(log["sigma_rate_bound"], dtype=float)[None, :]
+    jumped = (mean_jump > mean_bound * dt * (1.0 + RATE_SLACK) + MEAN_SLACK_M) | (
+        np.abs(sigma_jump) > sigma_bound * dt * (1.0 + RATE_SLACK) + SIGMA_SLACK_M
+    )
+    q = np.asarray(log["avoid_probability"], dtype=float)
+    records = []
+    for step, j in zip(*np.nonzero(jumped), strict=True):
+        k = int(step) + 1
+        records.append(
+            {
+                "t": float(t[k]),
+                "obstacle": int(j),
+                "mean_jump_m": float(mean_jump[step, j]),
+                "sigma_jump_m": float(sigma_jump[step, j]),
+                "q_before": float(q[k - 1, j]),
+                "q_after": float(q[k, j]),
+            }
+        )
+    return records
+
+
+def recovery_episodes(log: Mapping[str, np.ndarray]) -> list[dict[str, Any]]:
+    """Maximal runs of samples with the tube recovering from an obstacle (`recovery` = 1).
+
+    Returns:
+        One record per episode, ordered by obstacle then time: `obstacle` (j), `start_s`
+        (first recovering sample), `end_s` (first sample no longer recovering; None if it
+        still recovers at the last sample) and `worst_margin` (min over the episode's
+        samples of q_j(c) − ε_j, from `avoid_probability` and the logged ε).
+    """
+    t = np.asarray(log["t"], dtype=float)
+    if t.size == 0:
+        return []
+    table, n = _belief_table(log)
+    margin = np.asarray(log["avoid_probability"], dtype=float) - table[:, :, n + 2]
+    flags = np.asarray(log["recovery"], dtype=float).reshape(t.size, -1) == 1.0
+    episodes = []
+    for j in range(flags.shape[1]):
+        edges = np.diff(np.concatenate([[0], flags[:, j].astype(int), [0]]))
+        for start, stop in zip(
+            np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True
+        ):
+            episodes.append(
+                {
+                    "obstacle": j,
+                    "start_s": float(t[start]),
+                    "end_s": float(t[stop]) if stop < t.size else None,
+                    "worst_margin": float(np.min(margin[start:stop, j])),
+                }
+            )
+    return episodes
+
+
+def separation_after_entry(
+    log: Mapping[str, np.ndarray], final_entry_s: float | None
+) -> list[dict[str, Any]]:
+    """Assumption 3.1 on the log: after the final entry into the target set, the tube's own
+    q_j(c) (`avoid_probability`, buffered radius r_o + r_min) must stay ≥ p_d_j.
+
+    Returns:
+        One `assumptions` record per obstacle whose minimum q_j after `final_entry_s` is
+        below p_d_j (none when the run never settles in the target set): `assumption`
+        ("3.1"), `obstacle`, `t` (when the minimum occurred), `value` (that q_j),
+        `required` (p_d_j) and `message`.
+    """
+    if final_entry_s is None:
+        return []
+    t = np.asarray(log["t"], dtype=float)
+    after = t >= final_entry_s
+    if not np.any(after):
+        return []
+    table, n = _belief_table(log)
+    q = np.asarray(log["avoid_probability"], dtype=float)[after]
+    p_d = table[after, :, n + 3]
+    records = []
+    for j in range(q.shape[1]):
+        k = int(np.argmin(q[:, j] - p_d[:, j]))
+        if q[k, j] < p_d[k, j]:
+            when = float(t[after][k])
+            records.append(
+                {
+                    "assumption": "3.1",
+                    "obstacle": j,
+                    "t": when,
+                    "value": float(q[k, j]),
+                    "required": float(p_d[k, j]),
+                    "message": (
+                        f"obstacle {j} came within p_d of the tube's centre after it settled in "
+                        f"the target set (t_c = {final_entry_s:.2f} s): q = {q[k, j]:.6g} < "
+                        f"p_d = {p_d[k, j]:.6g} at t = {when:.2f} s, so Assumption 3.1 does "
+                        "not hold in this run"
+                    ),
+                }
+            )
+    return records
+
+
+def target_separation_violations(
+    scenario: Scenario, checkpoints: int = 200
+) -> list[dict[str, Any]]:
+    """Assumption 3.1 at the target, checked on the scenario before a run.
+
+    For each obstacle, q_j(η, t) = P(‖η − O_j(t)‖ ≥ r_o_j + r_min) is evaluated at
+    `checkpoints` times evenly over [0, duration] (η: the scenario's final target). An
+    obstacle for which q_j(η, t) < p_d_j still at the last checkpoint is within p_d of the
+    target at the end, so no t_1 exists: the assumption cannot hold. (A random field's
+    draws are kept only if they satisfy it, see :class:`stt_drake.scenario.RandomObstacles`.)
+
+    Returns:
+        One `assumptions` record per such obstacle: `assumption` ("3.1"), `obstacle`, `t`
+        (the last checkpoint, = duration), `value` (q_j(η, t)), `required` (p_d_j) and
+        `message` (which also says since when it has been below p_d).
+    """
+    if not scenario.obstacles:
+        return []
+    times = np.linspace(0.0, scenario.duration, max(int(checkpoints), 2))
+    target = np.asarray(scenario.target, dtype=float)
+    q = np.empty((times.size, len(scenario.obstacles)))
+    for k, time in enumerate(times):
+        belief = scenario.belief_at(float(time))
+        q[k] = avoid_probability(
+            target, belief.mean, belief.sigma, belief.radius + scenario.tube.r_min
+        )
+    p_d = scenario.belief_at(float(times[-1])).p_d
+    records = []
+    for j in np.flatnonzero(q[-1] < p_d):
+        clear = np.flatnonzero(q[:, j] >= p_d[j])
+        since = float(times[0 if clear.size == 0 else clear[-1] + 1])
+        records.append(
+            {
+                "assumption": "3.1",
+                "obstacle": int(j),
+                "t": float(times[-1]),
+                "value": float(q[-1, j]),
+                "required": float(p_d[j]),
+                "message": (
+                    f"obstacle {j} is within p_d of the target at the end (explicit obstacle): "
+                    f"q = {q[-1, j]:.6g} < p_d = {p_d[j]:.6g} from t = {since:.2f} s to the "
+                    f"end ({times[-1]:.2f} s), so Assumption 3.1 cannot hold"
+                ),
+            }
+        )
+    return records
