@@ -2,8 +2,8 @@
 
 Each subcommand is a module with ``add_parser(commands)`` that declares its arguments and
 sets ``handler`` (a function of the parsed arguments returning the exit code); `run` lives
-here. Exit codes are shared: 0 success, 1 a guarantee failed or the goal was missed, 2 bad
-input.
+here. Exit codes are shared: 0 success, 1 a guarantee failed, the goal was missed or the run
+stopped early (its metrics say why), 2 bad input.
 """
 
 from __future__ import annotations
@@ -37,7 +37,8 @@ def _parser() -> argparse.ArgumentParser:
         "run",
         help="simulate one scenario and check every guarantee",
         description="Exit code 0: every guarantee held and the target was reached; "
-        "1: a guarantee failed or the target was not reached; 2: bad input.",
+        "1: a guarantee failed, the target was not reached or the run stopped early "
+        "(integrator failure, step-rate watchdog, --strict); 2: bad input.",
     )
     run.add_argument(
         "scenario",
@@ -71,16 +72,22 @@ def _parser() -> argparse.ArgumentParser:
 def _run(args: argparse.Namespace) -> int:
     from stt_drake.run import simulate, summary, write_outputs
     from stt_drake.scenario import ScenarioError, load_scenario
+    from stt_drake.systems.monitor import step_rate_limit
 
     try:
         scenario = load_scenario(args.scenario, seed=args.seed)
+        step_rate_limit(scenario.max_steps_per_second)
     except ScenarioError as error:
         print(f"stt-drake: bad scenario {args.scenario}: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT
     result = simulate(scenario, strict=True if args.strict else None)
     out_dir = args.out if args.out is not None else Path("results") / scenario.name
     written = write_outputs(result, out_dir, figures=not args.no_figures)
-    if args.meshcat:
+    if args.meshcat and len(result.log["t"]) == 0:
+        print(
+            "stt-drake: no replay: the run stopped before its first logged sample", file=sys.stderr
+        )
+    elif args.meshcat:
         from stt_drake.replay import body_radius, write_meshcat_replay
 
         written.append(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,9 +14,22 @@ from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 
 from stt_drake.belief import record_size
 from stt_drake.builders import SttDiagram, build_diagram
-from stt_drake.invariants import HOLDS_TOLERANCE, InvariantTracker, tube_reach_time
+from stt_drake.feasibility import scenario_warnings
+from stt_drake.invariants import HOLDS_TOLERANCE, InvariantTracker, reach_story
 from stt_drake.manipulator import summarize_arm
 from stt_drake.scenario import Scenario, obstacle_rate_bounds
+from stt_drake.story import (
+    belief_discontinuities,
+    recovery_episodes,
+    separation_after_entry,
+    target_separation_violations,
+)
+from stt_drake.systems.monitor import StepRateWatchdog, step_rate_limit
+
+#: Invariants whose margin is a length (the others are probabilities).
+_METRE_MARGINS = ("output_in_tube", "radius_positive")
+#: How many belief discontinuities and recovery episodes the summary lists.
+_SUMMARY_LISTED = 3
 
 
 @dataclass
@@ -27,38 +41,45 @@ class RunResult:
 
     @property
     def success(self) -> bool:
-        """Every guarantee held, the target was reached (every task of a sequence) and no
-        plant limit was exceeded (exit code 0)."""
+        """The run ended normally, every guarantee held, the target was reached (every task
+        of a sequence) and no plant limit was exceeded (exit code 0)."""
         limits = self.metrics.get("limits", {}).values()
         return bool(
-            self.metrics["holds"]
+            self.metrics.get("stop_reason") is None
+            and self.metrics["holds"]
             and self.metrics["reached"]
             and all(record["holds"] for record in limits)
         )
 
 
 def collect_log(built: SttDiagram, scenario: Scenario, root_context: object) -> dict[str, Any]:
-    """Read every logger into one dict of arrays (the `log.npz` layout, samples first)."""
+    """Read every logger into one dict of arrays (the `log.npz` layout, samples first).
+
+    A run that an exception stopped during a publish has loggers one sample apart: every
+    signal is cut to the samples all loggers have.
+    """
     logs = {name: sink.FindLog(root_context) for name, sink in built.loggers.items()}
+    samples = min(log.num_samples() for log in logs.values())
+    data = {name: log.data()[:, :samples].T for name, log in logs.items()}
     mean_speed_bound, sigma_rate_bound = obstacle_rate_bounds(scenario.obstacles)
     n, m = scenario.dimension, len(scenario.obstacles)
-    tube = logs["tube"].data().T
-    diagnostics = logs["diagnostics"].data().T.reshape(-1, 3, m)
+    tube = data["tube"]
+    diagnostics = data["diagnostics"].reshape(-1, 3, m)
     log = {
         "name": np.array(scenario.name),
-        "t": logs["tube"].sample_times().copy(),
-        "output": logs["output"].data().T.copy(),
+        "t": logs["tube"].sample_times()[:samples].copy(),
+        "output": data["output"].copy(),
         "center": tube[:, :n].copy(),
         "radius": tube[:, n].copy(),
-        "belief": logs["belief"].data().T.copy(),
+        "belief": data["belief"].copy(),
         "avoid_probability": diagnostics[:, 0, :].copy(),
         "quantile_distance": diagnostics[:, 1, :].copy(),
         "theta": diagnostics[:, 2, :].copy(),
-        "recovery": logs["recovery"].data().T.copy(),
-        "control": logs["control"].data().T.copy(),
-        "margins": logs["margins"].data().T.copy(),
-        "output_avoid_probability": logs["output_avoid_probability"].data().T.copy(),
-        "tube_avoid_probability": logs["tube_avoid_probability"].data().T.copy(),
+        "recovery": data["recovery"].copy(),
+        "control": data["control"].copy(),
+        "margins": data["margins"].copy(),
+        "output_avoid_probability": data["output_avoid_probability"].copy(),
+        "tube_avoid_probability": data["tube_avoid_probability"].copy(),
         "dimension": np.array(n),
         "start": np.asarray(scenario.start, dtype=float),
         "initial_set_radius": np.array(scenario.initial_set_radius),
@@ -70,7 +91,7 @@ def collect_log(built: SttDiagram, scenario: Scenario, root_context: object) -> 
         "sigma_rate_bound": sigma_rate_bound,
     }
     for name in built.extra_logs:  # plant-specific signals, samples first
-        log[name] = logs[name].data().T.copy()
+        log[name] = data[name].copy()
     log.update({name: np.asarray(value) for name, value in built.log_constants.items()})
     return log
 
@@ -78,11 +99,13 @@ def collect_log(built: SttDiagram, scenario: Scenario, root_context: object) -> 
 def obstacle_report(log: dict[str, np.ndarray], scenario: Scenario) -> list[dict[str, Any]]:
     """Per obstacle: the closest approach of y to its mean, and its σ and ε."""
     n = scenario.dimension
-    table = log["belief"].reshape(len(log["t"]), -1, record_size(n))
+    table = log["belief"].reshape(len(log["t"]), len(scenario.obstacles), record_size(n))
     means, sigmas = table[:, :, :n], table[:, :, n]
     distance = np.linalg.norm(log["output"][:, None, :] - means, axis=2)
     report = []
     for j, obstacle in enumerate(scenario.obstacles):
+        if not distance.size:  # nothing logged (a run that failed at its start)
+            continue
         k = int(np.argmin(distance[:, j]))
         report.append(
             {
@@ -100,42 +123,93 @@ def obstacle_report(log: dict[str, np.ndarray], scenario: Scenario) -> list[dict
     return report
 
 
+def worst_margin_so_far(tracker: InvariantTracker) -> str:
+    """The lowest margin of any guarantee so far, as "name margin [m] at t = ... s"."""
+    name, record = min(tracker.records.items(), key=lambda item: item[1].worst_margin)
+    if not np.isfinite(record.worst_margin) and record.worst_margin > 0:
+        return "none evaluated"
+    unit = " m" if name in _METRE_MARGINS else ""
+    return f"{name} {record.worst_margin:+.2e}{unit} at t = {record.t_worst:.2f} s"
+
+
+def failure_reason(error: Exception, t: float) -> str:
+    """One sentence naming what failed inside the Simulator and when (t: the last
+    completed step)."""
+    text = str(error).strip().splitlines()
+    detail = text[0] if text else ""
+    if len(detail) > 200:
+        detail = detail[:197] + "..."
+    if "step smaller than minimum" in detail or "integrator" in detail.lower():
+        what = "the integrator failed"
+    else:
+        what = f"the simulation raised {type(error).__name__}"
+    return f"{what} at t = {t:.2f} s ({detail})" if detail else f"{what} at t = {t:.2f} s"
+
+
 def simulate(scenario: Scenario, strict: bool | None = None) -> RunResult:
     """Build, simulate for `scenario.duration` and check every guarantee.
 
     The guarantees are evaluated at every integrator step (Simulator monitor) and at every
-    logged sample; `strict` (default: the scenario's) stops at the first violation.
+    logged sample; `strict` (default: the scenario's) stops at the first violation. The
+    run always ends with a result: an exception inside the Simulator, a strict stop or
+    the step-rate watchdog (:class:`stt_drake.systems.monitor.StepRateWatchdog`) ends it
+    early with everything logged up to then and `stop_reason` saying why.
     """
     strict = scenario.strict if strict is None else strict
+    warnings = scenario_warnings(scenario)
+    assumptions = target_separation_violations(scenario)
     built = build_diagram(scenario)
     simulator = Simulator(built.diagram)
     ApplySimulatorConfig(scenario.simulator, simulator)
     tracker = InvariantTracker()
-    built.monitor.attach(simulator, tracker, strict)
-    stopped = None
+    watchdog = StepRateWatchdog(step_rate_limit(scenario.max_steps_per_second))
+    built.monitor.attach(simulator, tracker, strict, watchdog)
+    stopped = failure = None
     start = time.perf_counter()
-    simulator.Initialize()
     try:
+        simulator.Initialize()
         simulator.AdvanceTo(scenario.duration)
-    except RuntimeError as error:
-        if tracker.first_violation is None or tracker.first_violation not in str(error):
-            raise
-        stopped = tracker.first_violation
+    except Exception as error:  # every run ends with its metrics and log written
+        if strict and tracker.first_violation is not None and tracker.first_violation in str(error):
+            stopped = tracker.first_violation
+        else:
+            failure = error
     wall_time = time.perf_counter() - start
     context = simulator.get_context()
-    sim_time = context.get_time()
+    # After an exception the context may hold a half-taken step: report the last good one.
+    sim_time = context.get_time() if failure is None else (watchdog.last_time or 0.0)
     log = collect_log(built, scenario, context)
     tracker.update_many(log["t"], log["margins"])
-    t_reach = tube_reach_time(
-        log["t"], log["center"], log["radius"], log["target"], scenario.target_set_radius
+    if stopped is not None:
+        cause = f"strict mode stopped the run at the first violated guarantee: {stopped}"
+    elif failure is not None:
+        cause = failure_reason(failure, sim_time)
+    else:
+        cause = watchdog.message
+    stop_reason = None
+    if cause is not None:
+        stop_reason = f"{cause}; worst margin so far: {worst_margin_so_far(tracker)}"
+    # A task sequence is reached in its last task only (the sequencer logs the active target).
+    targets = log.get("task_target", log["target"])
+    reach = reach_story(
+        log["t"],
+        log["center"],
+        log["radius"],
+        targets,
+        scenario.target_set_radius,
+        final_target=log["target"],
     )
-    # Plant-specific metrics; a task sequence is reached only when every task completed.
-    plant_metrics = built.plant_report(log) if built.plant_report is not None else {}
+    t_reach = reach.final_entry_s
+    # Plant-specific metrics (none without a logged sample); a task sequence is reached
+    # only when every task completed.
+    plant_metrics = {}
+    if built.plant_report is not None and len(log["t"]) > 0:
+        plant_metrics = built.plant_report(log)
     segments = plant_metrics.get("segments", [])
     metrics = {
         "scenario": scenario.name,
         "reached": t_reach is not None
-        and stopped is None
+        and stop_reason is None
         and all(segment["completed"] for segment in segments),
         "t_reach": t_reach,
         "holds": tracker.holds,
@@ -144,9 +218,20 @@ def simulate(scenario: Scenario, strict: bool | None = None) -> RunResult:
         "realtime_factor": sim_time / wall_time if wall_time > 0 else None,
         "steps": simulator.get_num_steps_taken(),
         "holds_tolerance": HOLDS_TOLERANCE,
+        "stop_reason": stop_reason,
         "strict_stop": stopped,
         "first_violation": tracker.first_violation,
         "invariants": tracker.as_dict(),
+        "reach": reach.as_dict(),
+        "warnings": warnings,
+        "assumptions": assumptions + separation_after_entry(log, t_reach),
+        "belief_discontinuities": belief_discontinuities(log),
+        "recovery": recovery_episodes(log),
+        "step_rate": {
+            "limit_steps_per_s": watchdog.limit,
+            "window_steps": watchdog.window_steps,
+            "max_window_steps_per_s": watchdog.max_rate,
+        },
         "obstacles": obstacle_report(log, scenario),
         **plant_metrics,
     }
@@ -154,28 +239,86 @@ def simulate(scenario: Scenario, strict: bool | None = None) -> RunResult:
 
 
 def write_outputs(result: RunResult, out_dir: Path, figures: bool = True) -> list[Path]:
-    """Write metrics.json, log.npz and (optionally) the PNG figures into `out_dir`."""
+    """Write metrics.json, log.npz and (optionally) the PNG figures into `out_dir` (no
+    figures for a run that stopped before its second logged sample: no curve to draw)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     metrics_path = out_dir / "metrics.json"
     metrics_path.write_text(json.dumps(result.metrics, indent=2) + "\n")
     log_path = out_dir / "log.npz"
     np.savez_compressed(log_path, **result.log)
     written = [metrics_path, log_path]
-    if figures:
+    if figures and len(result.log["t"]) >= 2:
         from stt_drake.plotting import save_run_figures
 
         written += save_run_figures(result.log, out_dir)
     return written
 
 
+def _times(values: list[float]) -> str:
+    return ", ".join(f"{value:.2f}" for value in values) + " s"
+
+
+def _reach_lines(m: dict[str, Any]) -> list[str]:
+    reach = m["reach"]
+    # A task sequence enters and leaves each task's own target set in turn.
+    per_task = " (each task's target set)" if "segments" in m else ""
+    if m["reached"]:
+        lines = [f"  reached the target set: yes, t_c = {m['t_reach']:.2f} s"]
+    else:
+        lines = ["  reached the target set: NO"]
+    if reach["first_entry_s"] is None:
+        lines.append("    never entered the target set")
+    elif reach["exits_s"]:
+        lines.append(
+            f"    first entry {reach['first_entry_s']:.2f} s; left at {_times(reach['exits_s'])}; "
+            f"entered at {_times(reach['entries_s'])}{per_task}"
+        )
+    elif not m["reached"]:
+        lines.append(f"    entered at {reach['first_entry_s']:.2f} s and stayed")
+    return lines
+
+
+def _story_lines(m: dict[str, Any]) -> list[str]:
+    lines = []
+    if m["warnings"]:
+        lines.append("  warnings:")
+        lines += [f"    {warning}" for warning in m["warnings"]]
+    if m["assumptions"]:
+        lines.append("  assumptions broken:")
+        lines += [f"    {record['message']}" for record in m["assumptions"]]
+    jumps = m["belief_discontinuities"]
+    if jumps:
+        lines.append(f"  belief discontinuities: {len(jumps)}")
+        for jump in jumps[:_SUMMARY_LISTED]:
+            lines.append(
+                f"    obstacle {jump['obstacle']} at t = {jump['t']:.2f} s: mean moved "
+                f"{jump['mean_jump_m']:.3f} m, σ {jump['sigma_jump_m']:+.3f} m, q "
+                f"{jump['q_before']:.4f} → {jump['q_after']:.4f}"
+            )
+        if len(jumps) > _SUMMARY_LISTED:
+            lines.append(f"    ... and {len(jumps) - _SUMMARY_LISTED} more (metrics.json)")
+    episodes = m["recovery"]
+    if episodes:
+        lines.append(f"  recovery episodes: {len(episodes)}")
+        for episode in episodes[:_SUMMARY_LISTED]:
+            end = episode["end_s"]
+            end = "the end (still recovering)" if end is None else f"{end:.2f} s"
+            lines.append(
+                f"    obstacle {episode['obstacle']} from {episode['start_s']:.2f} s to {end}, "
+                f"worst q − ε = {episode['worst_margin']:+.3e}"
+            )
+        if len(episodes) > _SUMMARY_LISTED:
+            lines.append(f"    ... and {len(episodes) - _SUMMARY_LISTED} more (metrics.json)")
+    return lines
+
+
 def summary(result: RunResult) -> str:
     """A short human-readable summary of a run."""
     m = result.metrics
     lines = [f"scenario {m['scenario']}"]
-    if m["reached"]:
-        lines.append(f"  reached the target set: yes, t_c = {m['t_reach']:.2f} s")
-    else:
-        lines.append("  reached the target set: NO")
+    if m["stop_reason"]:
+        lines.append(f"  STOPPED EARLY: {m['stop_reason']}")
+    lines += _reach_lines(m)
     lines.append(f"  guarantees (worst margin, at time; holds if ≥ −{m['holds_tolerance']:g}):")
     for name, record in m["invariants"].items():
         verdict = "holds" if record["holds"] else "VIOLATED"
@@ -183,13 +326,15 @@ def summary(result: RunResult) -> str:
             f"    {name:<26} {verdict:<8} {record['worst_margin']:+.3e} at t = "
             f"{record['t_worst']:.2f} s"
         )
-    if m["strict_stop"]:
-        lines.append(f"  stopped (strict): {m['strict_stop']}")
+    lines += _story_lines(m)
+    factor = m["realtime_factor"]
     lines.append(
         f"  simulated {m['sim_time_s']:.1f} s in {m['wall_time_s']:.2f} s wall "
-        f"(real-time factor {m['realtime_factor']:.1f}×, {m['steps']} steps)"
+        f"(real-time factor {factor if factor is not None else math.nan:.1f}×, "
+        f"{m['steps']} steps)"
     )
-    lines.append("  closest approach to each obstacle mean (distance, σ, ε):")
+    if m["obstacles"]:
+        lines.append("  closest approach to each obstacle mean (distance, σ, ε):")
     for o in m["obstacles"]:
         lines.append(
             f"    #{o['index']:<3} {o['min_distance_to_mean']:.3f} m  σ = {o['sigma']:.3f} m  "

@@ -60,6 +60,16 @@ def test_run_default_scenario_writes_contract_files(tmp_path):
         assert record["holds"] is True and math.isfinite(record["worst_margin"])
     assert len(metrics["obstacles"]) == 4
     assert all(o["min_distance_to_mean"] > 0 for o in metrics["obstacles"])
+    # A normal end: no stop reason, one entry into the target set, nothing broken or jumping.
+    assert metrics["stop_reason"] is None
+    assert metrics["reach"] == {
+        "first_entry_s": metrics["t_reach"],
+        "entries_s": [metrics["t_reach"]],
+        "exits_s": [],
+        "final_entry_s": metrics["t_reach"],
+    }
+    for key in ("warnings", "assumptions", "belief_discontinuities", "recovery"):
+        assert metrics[key] == [], key
 
     log = np.load(out / "log.npz")
     assert log["output"].shape == (len(log["t"]), 2)
@@ -133,12 +143,31 @@ def test_violated_guarantee_exits_1_and_strict_mode_stops_at_it(tmp_path, capsys
     lax = json.loads((tmp_path / "lax" / "metrics.json").read_text())
     assert lax["invariants"]["output_in_tube"]["holds"] is False
     assert lax["invariants"]["output_in_tube"]["worst_margin"] < 0
-    assert "VIOLATED" in capsys.readouterr().out
+    assert lax["stop_reason"] is None
+    # The step is the run's one belief discontinuity; the tube recovers from it.
+    (jump,) = lax["belief_discontinuities"]
+    assert jump["obstacle"] == 0 and jump["t"] == pytest.approx(3.0, abs=0.02)
+    assert jump["mean_jump_m"] == pytest.approx(np.hypot(1.9, 1.95), rel=1e-6)
+    assert jump["q_before"] > 0.9 > jump["q_after"]  # ε = 0.9
+    (episode,) = [e for e in lax["recovery"] if e["obstacle"] == 0]
+    assert episode["start_s"] == pytest.approx(jump["t"]) and episode["end_s"] > jump["t"]
+    assert episode["worst_margin"] < 0
+    out = capsys.readouterr().out
+    assert "VIOLATED" in out
+    assert "belief discontinuities: 1" in out and "recovery episodes: " in out
 
     code = main(["run", str(weak), "--out", str(tmp_path / "strict"), "--no-figures", "--strict"])
     assert code == 1
     strict = json.loads((tmp_path / "strict" / "metrics.json").read_text())
     assert "output_in_tube" in strict["strict_stop"] and "t = " in strict["strict_stop"]
+    assert strict["stop_reason"].startswith("strict mode stopped the run")
+    assert strict["strict_stop"] in strict["stop_reason"]
+    # The centre's margin is the worst: the jump put it deep inside obstacle 0's ε set.
+    worst = strict["invariants"]["center_avoid_probability"]
+    assert strict["stop_reason"].endswith(
+        f"worst margin so far: center_avoid_probability {worst['worst_margin']:+.2e} at "
+        f"t = {worst['t_worst']:.2f} s"
+    )
     assert strict["sim_time_s"] < lax["sim_time_s"]
     t_first = strict["invariants"]["output_in_tube"]["t_worst"]
     assert strict["sim_time_s"] == pytest.approx(t_first, abs=0.05)

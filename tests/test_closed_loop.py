@@ -25,6 +25,8 @@ def test_every_guarantee_holds_and_target_is_reached(run_scenario, name):
     assert not failed, f"{name}: guarantees violated: {failed}"
     assert set(metrics["invariants"]) == set(INVARIANT_NAMES)
     assert metrics["reached"] and metrics["t_reach"] < metrics["sim_time_s"]
+    assert metrics["stop_reason"] is None
+    assert metrics["reach"]["final_entry_s"] == metrics["t_reach"]
     assert result.log["t"][-1] == pytest.approx(metrics["sim_time_s"])
     assert result.success
 

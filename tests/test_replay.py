@@ -40,6 +40,13 @@ METRICS_KEYS = {
     "first_violation",
     "invariants",
     "obstacles",
+    "stop_reason",
+    "reach",
+    "warnings",
+    "assumptions",
+    "belief_discontinuities",
+    "recovery",
+    "step_rate",
 }
 OBSTACLE_KEYS = {
     "index",
