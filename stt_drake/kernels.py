@@ -733,6 +733,26 @@ def _inflation(
 
 
 @njit(**_JIT)
+def _segment_distances(
+    start: np.ndarray, end: np.ndarray, mean: np.ndarray, j: int
+) -> tuple[float, float]:
+    """:func:`stt_drake.probability.segment_distances` for obstacle j."""
+    length2 = 0.0
+    along = 0.0
+    for i in range(start.shape[0]):
+        chord = end[i] - start[i]
+        length2 += chord * chord
+        along += (mean[j, i] - start[i]) * chord
+    fraction = along / length2 if length2 > 0.0 else 0.0
+    fraction = min(max(fraction, 0.0), 1.0)
+    nearest = 0.0
+    for i in range(start.shape[0]):
+        d = start[i] + fraction * (end[i] - start[i]) - mean[j, i]
+        nearest += d * d
+    return math.sqrt(nearest), max(_distance(start, mean, j), _distance(end, mean, j))
+
+
+@njit(**_JIT)
 def _segment_avoid_lower_bound(
     start: np.ndarray,
     end: np.ndarray,
@@ -745,20 +765,7 @@ def _segment_avoid_lower_bound(
 ) -> float:
     """:func:`stt_drake.probability.segment_avoid_lower_bound` for obstacle j."""
     n = start.shape[0]
-    length2 = 0.0
-    along = 0.0
-    for i in range(n):
-        chord = end[i] - start[i]
-        length2 += chord * chord
-        along += (mean[j, i] - start[i]) * chord
-    fraction = along / length2 if length2 > 0.0 else 0.0
-    fraction = min(max(fraction, 0.0), 1.0)
-    nearest = 0.0
-    for i in range(n):
-        d = start[i] + fraction * (end[i] - start[i]) - mean[j, i]
-        nearest += d * d
-    nearest = math.sqrt(nearest)
-    farthest = max(_distance(start, mean, j), _distance(end, mean, j))
+    nearest, farthest = _segment_distances(start, end, mean, j)
     grown = radius + spread * (farthest + reach + radius)
     offset = nearest - reach
     return chi_sf(grown / sigma, (offset if offset > 0.0 else 0.0) / sigma, n)
@@ -780,20 +787,7 @@ def _segment_quantile_lower_bound(
     """:func:`stt_drake.probability.segment_quantile_lower_bound` for obstacle j; where the
     cheap bound σ·max(a − Φ⁻¹(ε), 0) already gives more than `prune_above`, that bound."""
     n = start.shape[0]
-    length2 = 0.0
-    along = 0.0
-    for i in range(n):
-        chord = end[i] - start[i]
-        length2 += chord * chord
-        along += (mean[j, i] - start[i]) * chord
-    fraction = along / length2 if length2 > 0.0 else 0.0
-    fraction = min(max(fraction, 0.0), 1.0)
-    nearest = 0.0
-    for i in range(n):
-        d = start[i] + fraction * (end[i] - start[i]) - mean[j, i]
-        nearest += d * d
-    nearest = math.sqrt(nearest)
-    farthest = max(_distance(start, mean, j), _distance(end, mean, j))
+    nearest, farthest = _segment_distances(start, end, mean, j)
     offset = max(nearest - reach, 0.0) / sigma
     penalty = spread * (farthest + reach)
     cheap = (sigma * max(offset - ndtri(epsilon), 0.0) - penalty) / (1.0 + spread) - radius

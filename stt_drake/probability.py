@@ -229,6 +229,24 @@ def period_avoid_probability(
     )
 
 
+def segment_distances(
+    start: np.ndarray, end: np.ndarray, mean: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per obstacle j, the smallest and the largest distance from mean_j to a point of the
+    segment [start, end] (the closest point's, and an endpoint's)."""
+    mean = np.asarray(mean, dtype=float)
+    start = np.asarray(start, dtype=float)
+    chord = np.asarray(end, dtype=float) - start
+    length2 = float(chord @ chord)
+    along = (mean - start) @ chord / length2 if length2 > 0.0 else np.zeros(len(mean))
+    closest = start + np.clip(along, 0.0, 1.0)[:, None] * chord
+    nearest = np.linalg.norm(closest - mean, axis=-1)
+    farthest = np.maximum(
+        np.linalg.norm(start - mean, axis=-1), np.linalg.norm(start + chord - mean, axis=-1)
+    )
+    return nearest, farthest
+
+
 def segment_avoid_lower_bound(
     start: np.ndarray,
     end: np.ndarray,
@@ -244,15 +262,7 @@ def segment_avoid_lower_bound(
     (an endpoint)."""
     mean = np.asarray(mean, dtype=float)
     sigma = np.asarray(sigma, dtype=float)
-    start = np.asarray(start, dtype=float)
-    chord = np.asarray(end, dtype=float) - start
-    length2 = float(chord @ chord)
-    along = (mean - start) @ chord / length2 if length2 > 0.0 else np.zeros(len(mean))
-    closest = start + np.clip(along, 0.0, 1.0)[:, None] * chord
-    nearest = np.linalg.norm(closest - mean, axis=-1)
-    farthest = np.maximum(
-        np.linalg.norm(start - mean, axis=-1), np.linalg.norm(start + chord - mean, axis=-1)
-    )
+    nearest, farthest = segment_distances(start, end, mean)
     grown = radius + spread * (farthest + reach + radius)
     return noncentral_chi_sf(
         grown / sigma, np.maximum(nearest - reach, 0.0) / sigma, mean.shape[-1]
@@ -280,15 +290,7 @@ def segment_quantile_lower_bound(
     :func:`segment_avoid_lower_bound` (with r_o + r_min) exceeds ε_j."""
     mean = np.asarray(mean, dtype=float)
     sigma = np.asarray(sigma, dtype=float)
-    start = np.asarray(start, dtype=float)
-    chord = np.asarray(end, dtype=float) - start
-    length2 = float(chord @ chord)
-    along = (mean - start) @ chord / length2 if length2 > 0.0 else np.zeros(len(mean))
-    closest = start + np.clip(along, 0.0, 1.0)[:, None] * chord
-    nearest = np.linalg.norm(closest - mean, axis=-1)
-    farthest = np.maximum(
-        np.linalg.norm(start - mean, axis=-1), np.linalg.norm(start + chord - mean, axis=-1)
-    )
+    nearest, farthest = segment_distances(start, end, mean)
     epsilon = np.broadcast_to(np.asarray(epsilon, dtype=float), sigma.shape)
     offset = np.maximum(nearest - reach, 0.0) / sigma
     quantile = sigma * noncentral_chi_isf(epsilon, offset, mean.shape[-1])
