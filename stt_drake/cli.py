@@ -72,11 +72,9 @@ def _parser() -> argparse.ArgumentParser:
 def _run(args: argparse.Namespace) -> int:
     from stt_drake.run import simulate, summary, write_outputs
     from stt_drake.scenario import ScenarioError, load_scenario
-    from stt_drake.systems.monitor import step_rate_limit
 
     try:
         scenario = load_scenario(args.scenario, seed=args.seed)
-        step_rate_limit(scenario.max_steps_per_second)
     except ScenarioError as error:
         print(f"stt-drake: bad scenario {args.scenario}: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -749,6 +749,12 @@ def validate(scenario: Scenario) -> None:
         "must be > 0 (seconds)",
         scenario.log_period,
     )
+    _require(
+        0.0 <= scenario.max_steps_per_second < math.inf,
+        "scenario.max_steps_per_second",
+        "must be finite and ≥ 0 (steps per simulated second; 0 = the watchdog's default)",
+        scenario.max_steps_per_second,
+    )
     tube = scenario.tube
     _require(tube.r_min > 0.0, "scenario.tube.r_min", "must be > 0 (metres)", tube.r_min)
     _require(

@@ -18,7 +18,7 @@ import pytest
 from stt_drake import run as run_module
 from stt_drake.cli import main
 from stt_drake.run import simulate
-from stt_drake.scenario import ScenarioError, load_scenario
+from stt_drake.scenario import ScenarioError, load_scenario, validate
 from stt_drake.systems.monitor import (
     DEFAULT_MAX_STEPS_PER_SECOND,
     WATCHDOG_WINDOW_STEPS,
@@ -77,8 +77,10 @@ def test_step_rate_limit_default_and_bad_values(tmp_path, capsys):
     assert step_rate_limit(0.0) == DEFAULT_MAX_STEPS_PER_SECOND
     assert step_rate_limit(50.0) == 50.0
     for bad in (-1.0, math.inf, math.nan):
-        with pytest.raises(ScenarioError, match="max_steps_per_second"):
-            step_rate_limit(bad)
+        scenario = load_scenario(CASE1)
+        scenario.max_steps_per_second = bad
+        with pytest.raises(ScenarioError, match=r"scenario\.max_steps_per_second: must be finite"):
+            validate(scenario)
     bad = _case1(tmp_path, 1.0, "max_steps_per_second: -5.0\n")
     assert main(["run", str(bad), "--out", str(tmp_path / "out"), "--no-figures"]) == 2
     assert "scenario.max_steps_per_second" in capsys.readouterr().err

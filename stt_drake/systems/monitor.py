@@ -18,7 +18,6 @@ from pydrake.systems.framework import (
 
 from stt_drake.belief import belief_size
 from stt_drake.invariants import INVARIANT_NAMES, InvariantTracker, evaluate_invariants_packed
-from stt_drake.scenario import ScenarioError
 
 #: Default step-rate limit L (integrator steps per simulated second) of the watchdog, used
 #: when a scenario's ``max_steps_per_second`` is 0. Chosen so that no scenario here runs
@@ -38,15 +37,9 @@ WATCHDOG_WINDOW_STEPS = 500
 
 
 def step_rate_limit(max_steps_per_second: float) -> float:
-    """The watchdog limit for a scenario's ``max_steps_per_second`` (0: the default);
-    ScenarioError if it is negative or not finite."""
-    limit = float(max_steps_per_second)
-    if not (math.isfinite(limit) and limit >= 0.0):
-        raise ScenarioError(
-            "scenario.max_steps_per_second: must be finite and ≥ 0 (steps per simulated "
-            f"second; 0 = the default {DEFAULT_MAX_STEPS_PER_SECOND:g}) (got {limit!r})"
-        )
-    return limit if limit > 0.0 else DEFAULT_MAX_STEPS_PER_SECOND
+    """The watchdog limit for a scenario's validated ``max_steps_per_second`` (0: the
+    default)."""
+    return float(max_steps_per_second) or DEFAULT_MAX_STEPS_PER_SECOND
 
 
 class StepRateWatchdog:
