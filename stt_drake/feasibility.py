@@ -226,10 +226,27 @@ def scenario_warnings(scenario: Scenario) -> list[str]:
             f"saturated controller can follow at {available:.4g} m/s "
             f"(κ₁·ρ_max·r_low with ρ_max = {RHO_MAX:.3g})"
         )
-    for j in np.flatnonzero(levels >= speed):
+    escape = escape_speed(scenario)
+    for j in np.flatnonzero(levels >= escape):
         warnings.append(
             f"claim (ii) cannot be guaranteed for obstacle {j}: its level set may move at "
-            f"{levels[j]:.4g} m/s, not slower than max_center_speed = {speed:.4g} m/s, so it "
-            "can overtake the centre"
+            f"{levels[j]:.4g} m/s, not slower than the saturated law's escape speed "
+            f"{escape:.4g} m/s (max_center_speed·k2/√(k2² + k3²) with max_center_speed = "
+            f"{speed:.4g} m/s), so it can overtake the centre"
         )
     return warnings
+
+
+def escape_speed(scenario: Scenario) -> float:
+    """How fast the saturated law moves the centre out of a level set of q_j near ε_j (m/s).
+
+    There θ_j dominates eq. (cen_dynamic): ċ ∝ k2·m_j + k3·v_j with v_j ⟂ m_j and
+    |v_j| = |m_j| (n ≥ 2), and saturation scales that vector to v_c, so its component along
+    m_j (the direction that raises q_j) is v_c·k2/√(k2² + k3²). In one dimension there is
+    no v_j and it is v_c.
+    """
+    speed = center_speed(scenario)
+    tube = scenario.tube
+    if scenario.dimension < 2:
+        return speed
+    return speed * tube.k2 / math.hypot(tube.k2, tube.k3)

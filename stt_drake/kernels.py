@@ -817,8 +817,9 @@ def tube_advance(
     """:meth:`stt_drake.tube.TubeLaw.advance` in one call (same steps, same rules):
     sub-steps of the law with the look-ahead bound over 2·duration, each keeping every
     positive gap at least half; then the segment certificate over one duration, pulled back
-    towards `center` until it holds and its distance bound stays ≥ `start_radius` (NaN:
-    none); then the radius at both ends of the period. `constants` must skip the
+    towards `center` until it holds and the end radius the segment allows
+    (:func:`_end_radius_bound`, from `start_radius`; NaN: the first update) stays ≥ r_min;
+    then the radius at both ends of the period. `constants` must skip the
     quantiles of the law (prune_above = −∞).
 
     Returns:
@@ -899,17 +900,37 @@ def tube_advance(
     r_max = constants[2]
     nu = constants[3]
     prune_above = r_max + PRUNE_HEADROOM_NU / nu
+    at_start = np.empty(count)
+    for j in range(count):
+        at_start[j] = _segment_quantile_lower_bound(
+            center,
+            center,
+            mean,
+            j,
+            sigma[j],
+            radius[j],
+            epsilon[j],
+            reach1[j],
+            spread1[j],
+            prune_above,
+        )
+    if not start_radius <= np.min(at_start):  # the first update (NaN), or a belief jump
+        start_radius = soft_min_radius(at_start, r_max, nu)
     certified = np.empty(count, dtype=np.bool_)
-    distances = np.empty(count)
+    allowed = np.empty(count)
     holds = False
     for _halving in range(60):
         holds = True
+        length = 0.0
+        for i in range(n):
+            length += (position[i] - center[i]) ** 2
+        length = math.sqrt(length)
         for j in range(count):
             lower = _segment_avoid_lower_bound(
                 center, position, mean, j, sigma[j], radius[j] + r_min, reach1[j], spread1[j]
             )
             certified[j] = lower - epsilon[j] > 0.0
-            distances[j] = _segment_quantile_lower_bound(
+            on_segment = _segment_quantile_lower_bound(
                 center,
                 position,
                 mean,
@@ -921,8 +942,8 @@ def tube_advance(
                 spread1[j],
                 prune_above,
             )
-            fits = not (distances[j] < start_radius)  # NaN start radius: nothing to fit
-            if must_hold[j] and not (certified[j] and fits):
+            allowed[j] = _end_radius_bound(start_radius, at_start[j], on_segment, length)
+            if must_hold[j] and not (certified[j] and allowed[j] >= r_min):
                 holds = False
         if holds:
             break
@@ -931,19 +952,7 @@ def tube_advance(
     if not holds:
         position = center.copy()
         certified[:] = must_hold
-        for j in range(count):
-            distances[j] = _segment_quantile_lower_bound(
-                center,
-                center,
-                mean,
-                j,
-                sigma[j],
-                radius[j],
-                epsilon[j],
-                reach1[j],
-                spread1[j],
-                prune_above,
-            )
+        allowed[:] = at_start
     ahead = np.empty(count)
     for j in range(count):
         bound = _segment_quantile_lower_bound(
@@ -958,14 +967,22 @@ def tube_advance(
             spread2[j],
             prune_above,
         )
-        ahead[j] = min(bound, distances[j])
+        ahead[j] = min(bound, allowed[j])
     end_radius = soft_min_radius(ahead, r_max, nu)
-    smallest = math.inf
-    for j in range(count):
-        smallest = min(smallest, distances[j])
-    if start_radius <= smallest:  # False for NaN
-        return position, certified, accepted, start_radius, end_radius
-    return position, certified, accepted, soft_min_radius(distances, r_max, nu), end_radius
+    return position, certified, accepted, start_radius, end_radius
+
+
+@njit(**_JIT)
+def _end_radius_bound(
+    start_radius: float, at_start: float, on_segment: float, length: float
+) -> float:
+    """:func:`stt_drake.tube.end_radius_bound` for one obstacle."""
+    lipschitz = at_start - length
+    if lipschitz >= on_segment:
+        return lipschitz
+    if start_radius <= on_segment:
+        return on_segment
+    return start_radius - (start_radius - on_segment) * length / (at_start - on_segment)
 
 
 @njit(**_JIT)

@@ -69,8 +69,18 @@ So without belief jumps every period is certified. An obstacle whose Q^h_j(c_k) 
 (its belief jumped, or moved faster than its bound) is *recovering* for that period: the
 update escapes along the recovery direction at v_c, and the run records it.
 
-The radius is evaluated continuously at (c(t), belief(t)), so r ≤ min_j d̂_j exactly at
-every instant (claim ii, part 2) and r > 0 wherever q_j(c(t)) > ε_j (claim iii).
+The radius over a period. The same coupling bounds the quantile distance d̂_j from below
+over the period: D0_j at c_k and D_j over the whole segment
+(:func:`stt_drake.probability.segment_quantile_lower_bound`). The radius moves linearly
+from r_k ≤ min_j D0_j to r_{k+1}, and d̂_j is 1-Lipschitz in the point, so at the fraction
+s of the period d̂_j ≥ max(D0_j − sℓ, D_j) with ℓ = ‖c_{k+1} − c_k‖. A linear r(s) stays
+below that bound for the largest r_{k+1} of :func:`end_radius_bound`; r_{k+1} is the
+soft-min of those per-obstacle limits and of the look-ahead bound at c_{k+1}, and c_{k+1}
+is also pulled back until every certified obstacle's limit is ≥ r_min (so r > 0 by the
+choice of ν, claim iii). Hence r(t) ≤ d̂_j(c(t), t) at every instant (the ball is
+certified, claim ii), and the radius can fall as fast as the centre approaches an obstacle
+(the first version required D_j ≥ r_k, which let r fall only by the soft-min slack per
+period and stalled the centre in front of thin barriers at 10-20 Hz).
 """
 
 from __future__ import annotations
@@ -269,6 +279,32 @@ class BeliefRateBounds:
         spread = np.full(sigma.shape, np.inf)
         spread[positive] = sigma[positive] / low[positive] - 1.0
         return self.mean_speed * horizon, spread
+
+
+def end_radius_bound(
+    start_radius: float, at_start: np.ndarray, on_segment: np.ndarray, length: float
+) -> np.ndarray:
+    """Per obstacle, the largest end radius r_{k+1} for which the linearly interpolated
+    radius r(s) = r_k + s(r_{k+1} − r_k), s ∈ [0, 1], stays below the quantile distance
+    d̂_j along the period (module docstring, "The radius over a period").
+
+    With D0 = `at_start` (the bound at c_k over the period, ≥ r_k), D = `on_segment` (over
+    the whole segment) and ℓ = `length` = ‖c_{k+1} − c_k‖, d̂_j at the point s is at least
+    max(D0 − sℓ, D) (d̂_j is 1-Lipschitz in the point). A linear r(s) from r_k ≤ D0 stays
+    below that: up to D0 − ℓ when D0 − ℓ ≥ D; up to D when r_k ≤ D; otherwise only if it
+    has fallen to D where the two lines cross, s* = (D0 − D)/ℓ, i.e. up to
+    r_k − (r_k − D)·ℓ/(D0 − D).
+    """
+    at_start = np.asarray(at_start, dtype=float)
+    on_segment = np.asarray(on_segment, dtype=float)
+    lipschitz = at_start - length
+    with np.errstate(divide="ignore", invalid="ignore"):
+        falling = start_radius - (start_radius - on_segment) * length / (at_start - on_segment)
+    return np.where(
+        lipschitz >= on_segment,
+        lipschitz,
+        np.where(start_radius <= on_segment, on_segment, falling),
+    )
 
 
 @dataclass(frozen=True)
@@ -547,12 +583,12 @@ class TubeLaw:
         from overshooting η). A sub-step is accepted only if every positive gap
         Q^{2h}_j − ε_j stays at least half of what it was, else it is halved; after an
         accepted one the next may double. Then the segment from `center` to the result is
-        certified with Q^h and pulled back until it is, and until its distance bound
-        (:func:`stt_drake.probability.segment_quantile_lower_bound` over the period) stays
-        at least `radius`, the tube radius at the start of the period (NaN: none yet). The
-        radius moves linearly over the period from its start value to the soft-min of the
-        segment's and the look-ahead's distance bounds at the new centre, so the whole ball
-        is certified too (module docstring).
+        certified with Q^h and pulled back until it is, and until the end radius it allows
+        (:func:`end_radius_bound`, from `radius`, the tube radius at the start of the
+        period; NaN: none yet) is at least r_min for every certified obstacle. The radius
+        moves linearly over the period from its start value to the soft-min of those limits
+        and the look-ahead's distance bounds at the new centre, so the whole ball is
+        certified too (module docstring, "The radius over a period").
 
         One call of the compiled :func:`stt_drake.kernels.tube_advance` for n ≤ 3 (unless
         the numpy path is selected); the code below is its reference.
@@ -624,26 +660,31 @@ class TubeLaw:
                 start, end, belief.mean, belief.sigma, belief.radius, belief.epsilon, *inflation
             )
 
+        at_start = distance_bound(center, center, period)
+        if np.isfinite(radius) and radius <= np.min(at_start, initial=np.inf):
+            start_radius = float(radius)  # continuous: the period starts where the last ended
+        else:  # the first update, or a belief that left its bounds: the radius drops now
+            start_radius = self.radius(at_start)
         for _halving in range(60):
             lower = segment_avoid_lower_bound(
                 center, position, belief.mean, belief.sigma, safety_radius, *period
             )
-            distances = distance_bound(center, position, period)
             certified = lower - belief.epsilon > 0.0
-            fits = not np.isfinite(radius) or np.all(distances[must_hold] >= radius)
-            if np.all(certified[must_hold]) and fits:
+            allowed = end_radius_bound(
+                start_radius,
+                at_start,
+                distance_bound(center, position, period),
+                float(np.linalg.norm(position - center)),
+            )
+            if np.all(certified[must_hold]) and np.all(allowed[must_hold] >= self.r_min):
                 break
             position = center + 0.5 * (position - center)
         else:
             position = center
             certified = must_hold
-            distances = distance_bound(center, center, period)
+            allowed = at_start
         ahead = distance_bound(position, position, look_ahead)
-        end_radius = self.radius(np.minimum(distances, ahead))
-        if np.isfinite(radius) and radius <= np.min(distances, initial=np.inf):
-            start_radius = float(radius)  # continuous: the period starts where the last ended
-        else:  # the first update, or a belief that left its bounds: the radius drops now
-            start_radius = self.radius(distances)
+        end_radius = self.radius(np.minimum(allowed, ahead))
         return FixedRateUpdate(position, certified, accepted, start_radius, end_radius)
 
     def _displacement(

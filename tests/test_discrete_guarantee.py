@@ -208,6 +208,29 @@ def test_fixed_rate_update_keeps_q_above_epsilon_between_updates(rate_hz, compil
     assert np.linalg.norm(center - tube.target) < 0.05  # and the tube still got there
 
 
+def test_end_radius_bound_keeps_the_linear_radius_under_the_lipschitz_envelope():
+    """For random r_k ≤ D0, D ≤ D0 and ℓ: the linear radius from r_k to the bound stays
+    under max(D0 − sℓ, D) on a dense grid of s, and 1 mm more crosses it somewhere (the
+    bound is the largest such end radius)."""
+    from stt_drake.tube import end_radius_bound
+
+    rng = np.random.default_rng(RNG_SEED)
+    s = np.linspace(0.0, 1.0, 2001)
+    for _ in range(500):
+        at_start = rng.uniform(0.1, 1.0)
+        on_segment = rng.uniform(-0.2, at_start)
+        start_radius = rng.uniform(0.01, at_start)
+        length = rng.uniform(0.0, 1.0)
+        end = float(
+            end_radius_bound(start_radius, np.array([at_start]), np.array([on_segment]), length)[0]
+        )
+        envelope = np.maximum(at_start - s * length, on_segment)
+        radius = start_radius + s * (end - start_radius)
+        assert np.all(radius <= envelope + 1e-12)
+        larger = start_radius + s * (end + 1e-3 - start_radius)
+        assert np.any(larger > envelope)
+
+
 def test_frozen_belief_update_is_unsafe_with_the_same_obstacle():
     """The trap this fixes: the same update with the belief declared still (no rate
     bounds) lets q fall below ε between 10 Hz updates."""

@@ -138,6 +138,21 @@ def test_warnings_name_theorem_4_1_and_an_obstacle_faster_than_the_centre():
     assert any(w.startswith("claim (ii) cannot be guaranteed for obstacle 0") for w in warnings)
 
 
+@pytest.mark.parametrize(("k3", "warned"), [(0.4, True), (0.0, False)])
+def test_claim_ii_warning_uses_the_saturated_law_escape_speed(k3, warned):
+    """Near q_j = ε_j the saturated law splits v_c between k2·m and k3·v (v ⟂ m, |v| = |m|):
+    it leaves the level set at v_c·k2/√(k2² + k3²) = 1/√2 m/s with k2 = k3, so a 0.8 m/s
+    obstacle (slower than v_c = 1) can overtake it; without circulation (k3 = 0) it cannot."""
+    scenario = parse_scenario(omni(obstacle_speed=0.8).replace("k3: 0.4", f"k3: {k3}"))
+    assert feasibility.escape_speed(scenario) == pytest.approx(
+        1.0 * 0.4 / math.hypot(0.4, k3), rel=1e-12
+    )
+    claims = [w for w in feasibility.scenario_warnings(scenario) if w.startswith("claim (ii)")]
+    assert bool(claims) is warned
+    if warned:
+        assert "escape speed 0.7071 m/s" in claims[0] and "0.8 m/s" in claims[0]
+
+
 def test_fr3_lever_arms_bound_the_jacobian():
     """‖J(q) e‖ ≤ Σ_i ℓ_i |e_i| at random configurations and joint-velocity errors."""
     from stt_drake.systems.franka import ArmKinematics, fr3_lever_arm_bounds
