@@ -200,7 +200,7 @@ def reach_story(
 ) -> ReachStory:
     """Entries into and exits from the target set T = B(η, R_T), sample by sample.
 
-    Γ(t) = B(c, r) lies in T iff ‖c − η‖ + r ≤ R_T (up to HOLDS_TOLERANCE).
+    Γ(t) = B(c, r) lies in T iff ‖c − η‖ + r ≤ R_T (up to HOLDS_TOLERANCE) and r > 0.
 
     Args:
         t: (T,) sample times.
@@ -216,7 +216,9 @@ def reach_story(
     gap = np.linalg.norm(np.asarray(center, dtype=float) - target, axis=-1) + np.asarray(
         radius, dtype=float
     )
-    inside = gap <= target_set_radius + HOLDS_TOLERANCE
+    # A non-positive radius (an honest violation during recovery) is no tube at all: it
+    # would meet ‖c − η‖ + r ≤ R_T trivially.
+    inside = (gap <= target_set_radius + HOLDS_TOLERANCE) & (np.asarray(radius) > 0.0)
     previous = np.zeros_like(inside)  # inside at the sample before (none before the first)
     previous[1:] = inside[:-1]
     entries = t[inside & ~previous].tolist()

@@ -50,6 +50,18 @@ def test_reach_story_records_every_entry_and_exit():
     }
 
 
+def test_a_non_positive_radius_is_never_inside_the_target_set():
+    """During an honest violation the radius can go negative; ‖c − η‖ + r ≤ R_T then holds
+    trivially, but no tube lies in T: such samples are outside."""
+    t, center, radius = _tube_with_gaps([0.5, -0.1, -0.1, -0.1])
+    center[2] = TARGET  # at η with r = −0.05: ‖c − η‖ + r = −0.05 ≤ R_T
+    radius[2] = -0.05
+    story = reach_story(t, center, radius, TARGET, R_T)
+    assert story.entries_s == pytest.approx([0.1, 0.3])
+    assert story.exits_s == pytest.approx([0.2])
+    assert story.final_entry_s == pytest.approx(0.3)
+
+
 def test_reach_story_of_a_run_that_ends_outside_or_never_enters():
     t, center, radius = _tube_with_gaps([0.5, -0.1, -0.1, 0.2, 0.3])
     left = reach_story(t, center, radius, TARGET, R_T)
