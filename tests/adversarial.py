@@ -14,7 +14,10 @@ with <outcome> one of
   ends, the run ends normally with a finite, bounded tube;
 - ``warns <text>``: the run carries a pre-run warning containing <text> (e.g.
   ``Theorem 4.1``) and ends normally with a finite, bounded tube;
-- ``stops <text>``: the run ends early with a ``stop_reason`` containing <text>.
+- ``stops <text>``: the run ends early with a ``stop_reason`` containing <text>;
+- ``stalls <text>``: every guarantee holds and the run ends normally, but the tube never
+  settles in the target set (<text> names the cause, e.g. an equilibrium of the law): a
+  known liveness limit, recorded so that a change in it shows.
 
 Everything here is independent of the code under test: avoidance probabilities come from
 ``scipy.stats.ncx2`` on the raw logged centre, radius, output and belief.
@@ -37,19 +40,19 @@ SCENARIOS = Path(__file__).resolve().parent / "scenarios"
 #: to ~1e-12, far inside it.
 TOLERANCE = 1e-9
 
-#: Integrator steps per simulated second that a run may take on average: the issue asks
-#: for no more than 60 s of wall time per 60 s simulated; the costliest step measured on
-#: this machine is ~3 ms (the arm; ~1 ms for the omni base and the quadrotor), so 300
-#: steps per second keeps any run of the corpus at or above real time with a factor ~3 of
-#: room, without timing a test.
-MAX_MEAN_STEPS_PER_SECOND = 300.0
+#: Integrator steps per simulated second that a run which ends normally may take on
+#: average: the issue asks for no more than 60 s of wall time per 60 s simulated; a step of
+#: the omni base or the quadrotor costs at most ~1 ms here (the watchdog's measurements,
+#: stt_drake.systems.monitor), so 500 steps per second keeps a corpus run at ≥ 2× real
+#: time without timing a test. A run the watchdog stopped is bounded by the watchdog.
+MAX_MEAN_STEPS_PER_SECOND = 500.0
 
-_EXPECT = re.compile(r"^#\s*expect:\s*(holds|refused|recovers|warns|stops)\b\s*(.*)$")
+_EXPECT = re.compile(r"^#\s*expect:\s*(holds|refused|recovers|warns|stops|stalls)\b\s*(.*)$")
 
 
 @dataclass(frozen=True)
 class Expectation:
-    outcome: str  # holds | refused | recovers | warns | stops
+    outcome: str  # holds | refused | recovers | warns | stops | stalls
     detail: str  # the text a refusal, warning or stop reason must contain ("" for holds)
 
 
@@ -84,7 +87,8 @@ def recomputed_margins(log: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     n = int(log["dimension"])
     samples = len(log["t"])
     belief = np.asarray(log["belief"], dtype=float).reshape(samples, -1, n + 4)
-    mean, sigma, r_o, epsilon = belief[..., :n], belief[..., n], belief[..., n + 1], belief[..., n + 2]
+    mean, sigma = belief[..., :n], belief[..., n]
+    r_o, epsilon = belief[..., n + 1], belief[..., n + 2]
     center = np.asarray(log["center"], dtype=float)[:, None, :]
     output = np.asarray(log["output"], dtype=float)[:, None, :]
     radius = np.asarray(log["radius"], dtype=float)

@@ -14,6 +14,7 @@ SCENARIOS = [
     "omni_hardware_case2",
     "omni_hardware_case3",
     "omni_cluttered_50",
+    "omni_authors_field_50hz",
 ]
 
 
