@@ -50,22 +50,37 @@ def _outputs(out: Path) -> tuple[dict, dict[str, np.ndarray]]:
 
 
 def test_watchdog_counts_windows_and_resets_them():
-    watchdog = StepRateWatchdog(limit=100.0, window_steps=10)
+    # Times are exact binary fractions, so every window closes at exactly 10 steps.
+    watchdog = StepRateWatchdog(limit=100.0, window_steps=10, window_seconds=10 / 64)
     assert watchdog.step(0.0) is None  # initialisation: opens the first window
-    for k in range(1, 31):  # 10 steps per 0.2 s = 50 steps/s: three windows, none trips
-        assert watchdog.step(0.02 * k) is None
-    assert watchdog.max_rate == pytest.approx(50.0)
+    for k in range(1, 31):  # 10 steps per 10/64 s = 64 steps/s: three windows, none trips
+        assert watchdog.step(k / 64) is None
+    assert watchdog.max_rate == pytest.approx(64.0)
     t0 = watchdog.last_time
-    for k in range(1, 10):  # then 10 steps in 1 ms: 10⁴ steps/s
-        assert watchdog.step(t0 + 1e-4 * k) is None
-    message = watchdog.step(t0 + 1e-3)
+    # Then steps of 2⁻¹⁴ s: a burst may reach limit·window_seconds = 15.6 steps...
+    for k in range(1, 16):
+        assert watchdog.step(t0 + k / 2**14) is None
+    message = watchdog.step(t0 + 16 / 2**14)  # ...the 16th trips it
     assert message is not None and message == watchdog.message
-    assert message.startswith("step-rate watchdog: the integrator took 10 steps in")
-    assert "> limit 100" in message and f"at t = {t0 + 1e-3:.6g} s" in message
+    assert message.startswith("step-rate watchdog: the integrator took 16 steps in")
+    assert "> limit 100" in message and f"at t = {t0 + 16 / 2**14:.6g} s" in message
+
+
+def test_watchdog_lets_a_short_burst_pass_and_judges_the_sustained_rate():
+    """500 steps in 0.07 s (7e3 steps/s, as a fast crosser causes) and then 300 steps/s: the
+    window spans 1 s with 800 steps, below a limit of 4000 per second."""
+    watchdog = StepRateWatchdog(limit=4000.0)
+    watchdog.step(0.0)
+    for k in range(1, 501):
+        assert watchdog.step(0.07 * k / 500) is None
+    for k in range(1, 301):
+        assert watchdog.step(0.07 + 0.93 * k / 300) is None
+    assert watchdog.message is None
+    assert watchdog.max_rate == pytest.approx(800.0)
 
 
 def test_watchdog_trips_on_a_window_without_simulated_time():
-    watchdog = StepRateWatchdog(limit=1e12, window_steps=5)
+    watchdog = StepRateWatchdog(limit=1e12, window_steps=5, window_seconds=0.0)
     watchdog.step(1.0)
     assert [watchdog.step(1.0) for _ in range(4)] == [None] * 4
     message = watchdog.step(1.0)
@@ -165,7 +180,11 @@ def test_a_stalling_integrator_is_stopped_by_the_default_watchdog(monkeypatch):
     result = simulate(scenario)
     metrics = result.metrics
     reason = metrics["stop_reason"]
-    assert reason.startswith("step-rate watchdog: the integrator took 500 steps in")
+    # The stall starts at 1 s, inside the window that opened at 0: it trips once the count
+    # exceeds limit·max(elapsed, 1 s) = 4000 steps.
+    assert reason.startswith(
+        f"step-rate watchdog: the integrator took {int(DEFAULT_MAX_STEPS_PER_SECOND) + 1} steps"
+    )
     assert f"> limit {DEFAULT_MAX_STEPS_PER_SECOND:g})" in reason
     assert metrics["sim_time_s"] == pytest.approx(1.0, abs=1e-3)
     assert metrics["wall_time_s"] < 30.0
