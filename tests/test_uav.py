@@ -28,7 +28,7 @@ from stt_drake.systems.quadrotor import Quadrotor
 from stt_drake.tube import null_space_direction
 
 DIAGRAMS = Path(__file__).resolve().parent.parent / "diagrams"
-SCENARIOS = ["uav_paper", "uav_cluttered"]
+SCENARIOS = ["uav_paper", "uav_cluttered", "uav_authors_field"]
 
 
 def check_success(result: RunResult) -> None:
