@@ -25,12 +25,19 @@ Everything here is independent of the code under test: avoidance probabilities c
 
 from __future__ import annotations
 
+import math
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pytest
+import yaml
 from scipy.stats import ncx2
+
+from stt_drake.run import RunResult
+from stt_drake.scenario import ScenarioError, load_scenario, parse_scenario
 
 SCENARIOS = Path(__file__).resolve().parent / "scenarios"
 
@@ -117,3 +124,224 @@ def arena_excess(log: dict[str, np.ndarray]) -> float:
     center = np.asarray(log["center"], dtype=float)
     outside = np.maximum(low - center, 0.0) + np.maximum(center - high, 0.0)
     return float(np.linalg.norm(outside, axis=1).max()) / size
+
+
+# --------------------------------------------------------------------------- the YAML alone
+
+
+class _TaggedLoader(yaml.SafeLoader):
+    """Reads Drake's ``!Tag {...}`` variants as plain mappings with their tag under "tag"."""
+
+
+_TaggedLoader.add_multi_constructor(
+    "!", lambda loader, tag, node: {"tag": tag, **loader.construct_mapping(node, deep=True)}
+)
+
+
+def scenario_data(path: Path) -> dict:
+    """The file's YAML as plain data (no validation by the code under test)."""
+    return yaml.load(path.read_text(), Loader=_TaggedLoader)
+
+
+def update_rate(data: dict) -> float:
+    """tube.update_rate_hz of a file's data (0: continuous time)."""
+    return float(data.get("tube", {}).get("update_rate_hz", 0.0))
+
+
+def _slope(times: list[float], values: np.ndarray) -> float:
+    """Steepest ‖Δvalue‖/Δt over segments of positive length (a repeated time is a step)."""
+    times = np.asarray(times, dtype=float)
+    dt = np.diff(times)
+    change = np.linalg.norm(np.diff(values, axis=0), axis=1)
+    return float(np.max(change[dt > 0] / dt[dt > 0], initial=0.0))
+
+
+def _motion(motion: dict) -> tuple[np.ndarray, float]:
+    """Mean at t = 0 and speed bound sup ‖μ̇‖ (m/s) of one motion model."""
+    if motion["tag"] == "ConstantVelocity":
+        return np.asarray(motion["start"], float), float(np.linalg.norm(motion["velocity"]))
+    if motion["tag"] == "Oscillation":
+        phase = np.asarray(motion.get("phase") or 0.0, float)
+        mean = np.asarray(motion["center"], float) + np.asarray(motion["amplitude"]) * np.sin(phase)
+        speed = 2 * math.pi * motion.get("frequency_hz", 0.1) * np.linalg.norm(motion["amplitude"])
+        return mean, float(speed)
+    if motion["tag"] == "Waypoints":
+        positions = np.asarray(motion["positions"], dtype=float)
+        mean = np.array([np.interp(0.0, motion["times"], axis) for axis in positions.T])
+        return mean, _slope(motion["times"], positions)
+    raise AssertionError(f"unknown motion !{motion['tag']}")
+
+
+def admissible_period(data: dict) -> float:
+    """README "Admissible period", from the file's numbers: the longest h with, for every
+    obstacle j, 2·v̄_j·h ≤ r_o + r_min and 2·s̄_j·h ≤ σ_min,j/2, and the start certified for
+    the first period: Q^h_j(s) > ε_j with Δ = v̄h, γ = σ/(σ − s̄h) − 1, R = r_o + r_min,
+    a = ‖s − μ_j(0)‖, Q^h = P(‖Z'‖ ≥ (R + γ(a + Δ + R))/σ), Z' ~ N(max(a − Δ, 0)/σ·e, I)
+    (scipy's noncentral χ², bisection where the start rule binds)."""
+    assert not data.get("random_obstacles"), "refused files must list their obstacles"
+    r_min = data["tube"]["r_min"]
+    start = np.asarray(data["start"], dtype=float)
+    longest = math.inf
+    obstacles = []
+    for obstacle in data["obstacles"]:
+        mean, speed = _motion(obstacle["motion"])
+        schedule = obstacle.get("sigma_schedule")
+        if schedule:
+            values = np.asarray(schedule["values"], dtype=float)
+            sigma0 = float(np.interp(0.0, schedule["times"], values))
+            sigma_rate = _slope(schedule["times"], values[:, None])
+            sigma_min = float(values.min())
+        else:
+            sigma0 = sigma_min = float(obstacle.get("sigma", 0.1))
+            sigma_rate = 0.0
+        radius = obstacle.get("radius", 0.15) + r_min
+        if speed > 0:
+            longest = min(longest, radius / (2 * speed))
+        if sigma_rate > 0:
+            longest = min(longest, sigma_min / (4 * sigma_rate))
+        obstacles.append((mean, speed, sigma0, sigma_rate, radius, obstacle.get("epsilon", 0.9)))
+
+    def certified(h: float) -> bool:
+        for mean, speed, sigma, sigma_rate, radius, epsilon in obstacles:
+            low = sigma - sigma_rate * h
+            if low <= 0:
+                return False
+            gamma, reach = sigma / low - 1.0, speed * h
+            distance = float(np.linalg.norm(start - mean))
+            threshold = (radius + gamma * (distance + reach + radius)) / sigma
+            offset = max(distance - reach, 0.0) / sigma
+            if not ncx2.sf(threshold**2, len(start), offset**2) > epsilon:
+                return False
+        return True
+
+    high = longest if math.isfinite(longest) else 3600.0
+    if certified(high):
+        return longest
+    low = 0.0
+    for _ in range(60):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if certified(middle) else (low, middle)
+    return low
+
+
+# --------------------------------------------------------------------------- the checks
+
+
+def check_file(path: Path, run: Callable[[Path], RunResult]) -> None:
+    """Check one corpus file against its `# expect:` line; `run` simulates a file."""
+    expected = expectation(path)
+    if expected.outcome == "refused":
+        check_refused(path, expected.detail)
+        return
+    result = run(path)
+    metrics = result.metrics
+    check_every_run(path, result)
+    if expected.outcome == "holds":
+        check_safe(path, result)
+        assert metrics["reached"], f"{path.name}: target not reached ({metrics['reach']})"
+        # Every holding file says in its header why no warning applies.
+        assert metrics["warnings"] == [], f"{path.name}: {metrics['warnings']}"
+    elif expected.outcome == "recovers":
+        check_recovers(path, result)
+    elif expected.outcome == "warns":
+        assert any(expected.detail in warning for warning in metrics["warnings"]), (
+            f"{path.name}: no warning contains {expected.detail!r}: {metrics['warnings']}"
+        )
+        assert metrics["stop_reason"] is None, f"{path.name}: {metrics['stop_reason']}"
+    elif expected.outcome == "stops":
+        reason = metrics["stop_reason"]
+        assert reason is not None and expected.detail in reason, f"{path.name}: {reason!r}"
+        assert not metrics["reached"], f"{path.name}: a stopped run is never a success"
+    elif expected.outcome == "stalls":  # safe but not live
+        check_safe(path, result)
+        assert metrics["reach"]["final_entry_s"] is None and not metrics["reached"], (
+            f"{path.name}: reached the target after all ({metrics['reach']}): update the file"
+        )
+    else:  # pragma: no cover (the expectation regex admits nothing else)
+        raise AssertionError(f"{path.name}: unknown outcome {expected.outcome}")
+
+
+def check_every_run(path: Path, result: RunResult) -> None:
+    """What every simulated run must meet: a finite tube near the arena and a bounded
+    number of integrator steps per simulated second (never wall time): the mean budget for
+    a run that ended normally, the watchdog's own bound for one it stopped."""
+    log, metrics = result.log, result.metrics
+    assert len(log["t"]) >= 1, f"{path.name}: nothing logged"
+    assert np.all(np.isfinite(log["center"])), f"{path.name}: non-finite tube centre"
+    assert np.all(np.isfinite(log["radius"])), f"{path.name}: non-finite tube radius"
+    excess = arena_excess(log)
+    assert excess <= 1.0, f"{path.name}: the centre left the arena by {excess:.3g} arena sizes"
+    assert metrics["sim_time_s"] > 0.0, f"{path.name}: no simulated time"
+    if metrics["stop_reason"] is not None:
+        step_rate = metrics["step_rate"]
+        assert step_rate["max_window_steps_per_s"] > 0.0
+        bound = step_rate["limit_steps_per_s"] * metrics["sim_time_s"] + step_rate["window_steps"]
+        assert metrics["steps"] <= bound, f"{path.name}: {metrics['steps']} > {bound}"
+        return
+    rate = metrics["steps"] / metrics["sim_time_s"]
+    assert rate <= MAX_MEAN_STEPS_PER_SECOND, (
+        f"{path.name}: {metrics['steps']} steps in {metrics['sim_time_s']:.3g} s of "
+        f"simulated time ({rate:.0f}/s > {MAX_MEAN_STEPS_PER_SECOND:.0f}/s)"
+    )
+
+
+def check_safe(path: Path, result: RunResult) -> None:
+    """The run ended normally and every guarantee held, recomputed at every logged sample
+    (≥ −TOLERANCE) and as the library reports it."""
+    metrics, t = result.metrics, result.log["t"]
+    assert metrics["stop_reason"] is None, f"{path.name}: {metrics['stop_reason']}"
+    for name, margin in recomputed_margins(result.log).items():
+        k = int(np.argmin(margin))
+        assert margin[k] >= -TOLERANCE, (
+            f"{path.name}: {name} recomputed margin {margin[k]:.3e} at t = {t[k]:.3f} s"
+        )
+    failed = {k: v for k, v in metrics["invariants"].items() if not v["holds"]}
+    assert metrics["holds"] and not failed, f"{path.name}: the library reports {failed}"
+
+
+def check_recovers(path: Path, result: RunResult) -> None:
+    """A belief jump the motion model cannot make, recovery episodes that all end, the
+    violation visible in the recomputed centre margin and reported as not holding, and a
+    normal end."""
+    metrics = result.metrics
+    assert metrics["stop_reason"] is None, f"{path.name}: {metrics['stop_reason']}"
+    assert metrics["belief_discontinuities"], f"{path.name}: no belief discontinuity found"
+    episodes = metrics["recovery"]
+    assert episodes, f"{path.name}: the tube never recovered"
+    unfinished = [e for e in episodes if e["end_s"] is None]
+    assert not unfinished, f"{path.name}: still recovering at the end: {unfinished}"
+    # Honest reporting: the violation is in the log and in the metrics.
+    center = recomputed_margins(result.log)["center_avoid_probability"]
+    assert center.min() < -TOLERANCE, (
+        f"{path.name}: the jump never put the centre inside an ε level set "
+        f"(worst recomputed margin {center.min():.3e})"
+    )
+    assert metrics["invariants"]["center_avoid_probability"]["holds"] is False, (
+        f"{path.name}: the recomputed margin is {center.min():.3e}, but the library "
+        "reports center_avoid_probability as holding"
+    )
+
+
+def check_refused(path: Path, detail: str) -> None:
+    """The loader refuses the file naming `detail` and stating the largest admissible
+    period computed here from the YAML alone (to its 4 printed digits); the file's own
+    period is longer, and a period just inside the rule loads (the rate is the only
+    thing wrong)."""
+    data = scenario_data(path)
+    period = admissible_period(data)
+    rate = update_rate(data)
+    assert rate > 0.0 and 1.0 / rate > period, (
+        f"{path.name}: 1/{rate:g} Hz is admissible by the rule (≤ {period:.4g} s)"
+    )
+    with pytest.raises(ScenarioError) as refusal:
+        load_scenario(path)
+    message = str(refusal.value)
+    assert detail in message, f"{path.name}: {message}"
+    assert f"the largest admissible period is {period:.4g} s" in message, (
+        f"{path.name}: expected the admissible period {period:.4g} s in: {message}"
+    )
+    inside, count = re.subn(
+        r"update_rate_hz:\s*[0-9.eE+-]+", f"update_rate_hz: {1.01 / period!r}", path.read_text()
+    )
+    assert count == 1, f"{path.name}: expected exactly one update_rate_hz"
+    parse_scenario(inside, default_name=path.stem)
