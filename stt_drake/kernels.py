@@ -900,20 +900,9 @@ def tube_advance(
     r_max = constants[2]
     nu = constants[3]
     prune_above = r_max + PRUNE_HEADROOM_NU / nu
-    at_start = np.empty(count)
-    for j in range(count):
-        at_start[j] = _segment_quantile_lower_bound(
-            center,
-            center,
-            mean,
-            j,
-            sigma[j],
-            radius[j],
-            epsilon[j],
-            reach1[j],
-            spread1[j],
-            prune_above,
-        )
+    at_start = _point_quantile_lower_bounds(
+        center, mean, sigma, radius, epsilon, reach1, spread1, prune_above
+    )
     if not start_radius <= np.min(at_start):  # the first update (NaN), or a belief jump
         start_radius = soft_min_radius(at_start, r_max, nu)
     certified = np.empty(count, dtype=np.bool_)
@@ -953,23 +942,35 @@ def tube_advance(
         position = center.copy()
         certified[:] = must_hold
         allowed[:] = at_start
-    ahead = np.empty(count)
-    for j in range(count):
-        bound = _segment_quantile_lower_bound(
-            position,
-            position,
-            mean,
-            j,
-            sigma[j],
-            radius[j],
-            epsilon[j],
-            reach2[j],
-            spread2[j],
-            prune_above,
-        )
-        ahead[j] = min(bound, allowed[j])
+    ahead = np.minimum(
+        _point_quantile_lower_bounds(
+            position, mean, sigma, radius, epsilon, reach2, spread2, prune_above
+        ),
+        allowed,
+    )
     end_radius = soft_min_radius(ahead, r_max, nu)
     return position, certified, accepted, start_radius, end_radius
+
+
+@njit(**_JIT)
+def _point_quantile_lower_bounds(
+    point: np.ndarray,
+    mean: np.ndarray,
+    sigma: np.ndarray,
+    radius: np.ndarray,
+    epsilon: np.ndarray,
+    reach: np.ndarray,
+    spread: np.ndarray,
+    prune_above: float,
+) -> np.ndarray:
+    """Per obstacle, the lower bound of d̂_j at `point` over the horizon of (reach, spread):
+    :func:`_segment_quantile_lower_bound` of the segment [point, point]."""
+    bounds = np.empty(mean.shape[0])
+    for j in range(mean.shape[0]):
+        bounds[j] = _segment_quantile_lower_bound(
+            point, point, mean, j, sigma[j], radius[j], epsilon[j], reach[j], spread[j], prune_above
+        )
+    return bounds
 
 
 @njit(**_JIT)
