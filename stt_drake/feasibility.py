@@ -226,7 +226,7 @@ def scenario_warnings(scenario: Scenario) -> list[str]:
             f"saturated controller can follow at {available:.4g} m/s "
             f"(κ₁·ρ_max·r_low with ρ_max = {RHO_MAX:.3g})"
         )
-    escape = escape_speed(scenario)
+    escape = escape_speed(speed, scenario.tube.k2, scenario.tube.k3, scenario.dimension)
     for j in np.flatnonzero(levels >= escape):
         warnings.append(
             f"claim (ii) cannot be guaranteed for obstacle {j}: its level set may move at "
@@ -237,16 +237,14 @@ def scenario_warnings(scenario: Scenario) -> list[str]:
     return warnings
 
 
-def escape_speed(scenario: Scenario) -> float:
+def escape_speed(max_center_speed: float, k2: float, k3: float, dimension: int) -> float:
     """How fast the saturated law moves the centre out of a level set of q_j near ε_j (m/s).
 
     There θ_j dominates eq. (cen_dynamic): ċ ∝ k2·m_j + k3·v_j with v_j ⟂ m_j and
-    |v_j| = |m_j| (n ≥ 2), and saturation scales that vector to v_c, so its component along
-    m_j (the direction that raises q_j) is v_c·k2/√(k2² + k3²). In one dimension there is
-    no v_j and it is v_c.
+    |v_j| = |m_j| (n ≥ 2), and saturation scales that vector to v_c = `max_center_speed`, so
+    its component along m_j (the direction that raises q_j) is v_c·k2/√(k2² + k3²). In one
+    dimension there is no v_j and it is v_c.
     """
-    speed = center_speed(scenario)
-    tube = scenario.tube
-    if scenario.dimension < 2:
-        return speed
-    return speed * tube.k2 / math.hypot(tube.k2, tube.k3)
+    if dimension < 2:
+        return max_center_speed
+    return max_center_speed * k2 / math.hypot(k2, k3)

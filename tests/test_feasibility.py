@@ -144,7 +144,9 @@ def test_claim_ii_warning_uses_the_saturated_law_escape_speed(k3, warned):
     it leaves the level set at v_c·k2/√(k2² + k3²) = 1/√2 m/s with k2 = k3, so a 0.8 m/s
     obstacle (slower than v_c = 1) can overtake it; without circulation (k3 = 0) it cannot."""
     scenario = parse_scenario(omni(obstacle_speed=0.8).replace("k3: 0.4", f"k3: {k3}"))
-    assert feasibility.escape_speed(scenario) == pytest.approx(
+    speed = feasibility.center_speed(scenario)
+    assert speed == 1.0
+    assert feasibility.escape_speed(speed, 0.4, k3, 2) == pytest.approx(
         1.0 * 0.4 / math.hypot(0.4, k3), rel=1e-12
     )
     claims = [w for w in feasibility.scenario_warnings(scenario) if w.startswith("claim (ii)")]
