@@ -12,7 +12,6 @@ from typing import Any
 import numpy as np
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 
-from stt_drake.belief import record_size
 from stt_drake.builders import SttDiagram, build_diagram
 from stt_drake.feasibility import scenario_warnings
 from stt_drake.invariants import HOLDS_TOLERANCE, InvariantTracker, reach_story
@@ -20,6 +19,7 @@ from stt_drake.manipulator import summarize_arm
 from stt_drake.scenario import Scenario, obstacle_rate_bounds
 from stt_drake.story import (
     belief_discontinuities,
+    belief_table,
     recovery_episodes,
     separation_after_entry,
     target_separation_violations,
@@ -98,8 +98,7 @@ def collect_log(built: SttDiagram, scenario: Scenario, root_context: object) -> 
 
 def obstacle_report(log: dict[str, np.ndarray], scenario: Scenario) -> list[dict[str, Any]]:
     """Per obstacle: the closest approach of y to its mean, and its σ and ε."""
-    n = scenario.dimension
-    table = log["belief"].reshape(len(log["t"]), len(scenario.obstacles), record_size(n))
+    table, n = belief_table(log)
     means, sigmas = table[:, :, :n], table[:, :, n]
     distance = np.linalg.norm(log["output"][:, None, :] - means, axis=2)
     report = []

@@ -31,8 +31,9 @@ MEAN_SLACK_M = 1e-9
 SIGMA_SLACK_M = 1e-12
 
 
-def _belief_table(log: Mapping[str, np.ndarray]) -> tuple[np.ndarray, int]:
-    """The logged belief as (T, m, n + 4) records, and n."""
+def belief_table(log: Mapping[str, np.ndarray]) -> tuple[np.ndarray, int]:
+    """The logged belief as (T, m, n + 4) records ([μ (n), σ, r_o, ε, p_d] per obstacle),
+    and n."""
     n = int(log["dimension"])
     belief = np.asarray(log["belief"], dtype=float)
     record = record_size(n)
@@ -54,7 +55,7 @@ def belief_discontinuities(log: Mapping[str, np.ndarray]) -> list[dict[str, Any]
     t = np.asarray(log["t"], dtype=float)
     if t.size < 2:
         return []
-    table, n = _belief_table(log)
+    table, n = belief_table(log)
     mean, sigma = table[:, :, :n], table[:, :, n]
     dt = np.diff(t)[:, None]
     mean_jump = np.linalg.norm(np.diff(mean, axis=0), axis=2)
@@ -93,7 +94,7 @@ def recovery_episodes(log: Mapping[str, np.ndarray]) -> list[dict[str, Any]]:
     t = np.asarray(log["t"], dtype=float)
     if t.size == 0:
         return []
-    table, n = _belief_table(log)
+    table, n = belief_table(log)
     margin = np.asarray(log["avoid_probability"], dtype=float) - table[:, :, n + 2]
     flags = np.asarray(log["recovery"], dtype=float).reshape(t.size, -1) == 1.0
     episodes = []
@@ -131,7 +132,7 @@ def separation_after_entry(
     after = t >= final_entry_s
     if not np.any(after):
         return []
-    table, n = _belief_table(log)
+    table, n = belief_table(log)
     q = np.asarray(log["avoid_probability"], dtype=float)[after]
     p_d = table[after, :, n + 3]
     records = []
