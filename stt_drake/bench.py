@@ -5,13 +5,13 @@ Measured in one run, each as the median and spread over repeats (wall clock,
 the numba kernels):
 
 1. one tube step — q_j, θ_j, m_j, v_j, d̂_j, r and ċ for all obstacles
-   (:meth:`stt_drake.tube.TubeLaw.evaluate`) — for 10, 50, 200 and 1000 obstacles in 2D and
+   (:meth:`stt_drake.core.tube.TubeLaw.evaluate`) — for 10, 50, 200 and 1000 obstacles in 2D and
    3D, against the *baseline*: a per-obstacle Python loop over ``scipy.stats.ncx2.cdf`` /
    ``.ppf`` (a direct port of the authors' MATLAB loop), measured in the same run; the
    ratio is the speedup. Two obstacle fields: ``typical`` (the density, σ and ε of the
    shipped cluttered scenarios, around a valid tube centre) and ``worst`` (every obstacle
    inside its avoidance layer, so no quantile can be pruned);
-2. one controller evaluation, :meth:`stt_drake.control.FunnelController.evaluate`, for one
+2. one controller evaluation, :meth:`stt_drake.core.control.FunnelController.evaluate`, for one
    stage (omni robot, n = 2) and two stages (UAV, n = 3), and the numpy reference path;
 3. the closed loops of ``omni_cluttered_50`` and ``uav_cluttered`` in Drake's Simulator with
    the invariant monitor on (every guarantee checked at every step): simulated time / wall
@@ -38,10 +38,10 @@ from typing import Any
 import numpy as np
 from scipy.special import ndtri
 
-from stt_drake import backend
-from stt_drake.belief import ObstacleBelief
-from stt_drake.probability import avoid_probability
-from stt_drake.tube import TubeLaw, default_nu
+from stt_drake.core import backend
+from stt_drake.core.belief import ObstacleBelief
+from stt_drake.core.probability import avoid_probability
+from stt_drake.core.tube import TubeLaw, default_nu
 
 #: Obstacle counts of the tube-step benchmark.
 COUNTS = (10, 50, 200, 1000)
@@ -142,7 +142,7 @@ def baseline_tube_step(
     ``scipy.stats.ncx2.cdf`` and ``.ppf`` once each (q_j as 1 − cdf, no pruning).
 
     Returns:
-        (ċ, r, q, d̂, θ), comparable with :class:`stt_drake.tube.TubeEvaluation`.
+        (ċ, r, q, d̂, θ), comparable with :class:`stt_drake.core.tube.TubeEvaluation`.
     """
     from scipy.stats import ncx2
 
@@ -241,7 +241,7 @@ def bench_tube_steps(counts: tuple[int, ...], repeats: int) -> dict[str, Any]:
 
 def bench_controller(repeats: int) -> dict[str, Any]:
     """FunnelController.evaluate: one stage (n = 2) and two stages (n = 3), both paths."""
-    from stt_drake.control import BoxFunnel, FunnelController
+    from stt_drake.core.control import BoxFunnel, FunnelController
 
     cases = {
         "stage1": (
@@ -288,15 +288,15 @@ def bench_closed_loop(
         return {"available": False, "reason": f"{path.name} not found"}
     from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 
-    from stt_drake.builders import build_diagram
-    from stt_drake.invariants import InvariantTracker
-    from stt_drake.scenario import load_scenario
+    from stt_drake.build.diagram import build_diagram
+    from stt_drake.config import load_scenario
+    from stt_drake.core.invariants import InvariantTracker
 
     scenario = load_scenario(path)
     if duration is not None:
         scenario.duration = min(scenario.duration, duration)
     if update_rate_hz is not None:
-        from stt_drake.feasibility import validate_real_time
+        from stt_drake.build.feasibility import validate_real_time
 
         scenario.tube.update_rate_hz = update_rate_hz
         validate_real_time(scenario)
@@ -357,9 +357,9 @@ def profile_closed_loop(name: str, duration: float = 10.0, top: int = 25) -> dic
         return {"available": False, "reason": f"{path.name} not found"}
     from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 
-    from stt_drake.builders import build_diagram
-    from stt_drake.invariants import InvariantTracker
-    from stt_drake.scenario import load_scenario
+    from stt_drake.build.diagram import build_diagram
+    from stt_drake.config import load_scenario
+    from stt_drake.core.invariants import InvariantTracker
 
     scenario = load_scenario(path)
     built = build_diagram(scenario)
@@ -682,7 +682,7 @@ def add_parser(commands: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from stt_drake.cli import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS
+    from stt_drake.cli.main import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS
 
     if args.repeats < 1 or args.loop_repeats < 1 or min(args.counts) < 1:
         print(

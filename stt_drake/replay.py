@@ -150,7 +150,7 @@ def write_meshcat_replay(
         meshcat.SetObject(f"{_ROOT}/tube", Sphere(1.0), _rgba(PALETTE["tube"], 0.25))
         arm = None
         if "joint_state" in log:  # the FR3 arm: its links, posed from the logged joints
-            from stt_drake.systems.franka import FR3_JOINTS, Fr3Drawing
+            from stt_drake.systems.plants.franka import FR3_JOINTS, Fr3Drawing
 
             arm = Fr3Drawing(meshcat, f"{_ROOT}/arm")
             joints = np.asarray(log["joint_state"], dtype=float)[:, :FR3_JOINTS]

@@ -12,11 +12,11 @@ from typing import Any
 import numpy as np
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 
-from stt_drake.builders import SttDiagram, build_diagram
-from stt_drake.feasibility import scenario_warnings
-from stt_drake.invariants import HOLDS_TOLERANCE, InvariantTracker, reach_story
-from stt_drake.manipulator import summarize_arm
-from stt_drake.scenario import Scenario, obstacle_rate_bounds
+from stt_drake.build.diagram import SttDiagram, build_diagram
+from stt_drake.build.feasibility import scenario_warnings
+from stt_drake.config import Scenario, obstacle_rate_bounds
+from stt_drake.core.arm import summarize_arm
+from stt_drake.core.invariants import HOLDS_TOLERANCE, InvariantTracker, reach_story
 from stt_drake.story import (
     belief_discontinuities,
     belief_table,

@@ -1,7 +1,7 @@
 """What happened during a run beyond the guarantees: the assumptions the scenario broke,
 the belief discontinuities and the tube's recovery episodes (metrics.json keys
 `assumptions`, `belief_discontinuities` and `recovery`; the reach story is
-:func:`stt_drake.invariants.reach_story`).
+:func:`stt_drake.core.invariants.reach_story`).
 
 Pure numpy on the run log (:func:`stt_drake.run.collect_log` layout, samples first), except
 :func:`target_separation_violations`, which reads the scenario before a run.
@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 
-from stt_drake.belief import record_size
-from stt_drake.probability import avoid_probability
-from stt_drake.scenario import Scenario
+from stt_drake.config import Scenario
+from stt_drake.core.belief import record_size
+from stt_drake.core.probability import avoid_probability
 
 #: Relative slack on the rate bounds when looking for a belief discontinuity (a smooth
 #: motion at exactly its bound must not count).
@@ -167,7 +167,7 @@ def target_separation_violations(
     `checkpoints` times evenly over [0, duration] (η: the scenario's final target). An
     obstacle for which q_j(η, t) < p_d_j still at the last checkpoint is within p_d of the
     target at the end, so no t_1 exists: the assumption cannot hold. (A random field's
-    draws are kept only if they satisfy it, see :class:`stt_drake.scenario.RandomObstacles`.)
+    draws are kept only if they satisfy it, see :class:`stt_drake.config.RandomObstacles`.)
 
     Returns:
         One `assumptions` record per such obstacle: `assumption` ("3.1"), `obstacle`, `t`

@@ -36,8 +36,8 @@ import pytest
 import yaml
 from scipy.stats import ncx2
 
+from stt_drake.config import ScenarioError, load_scenario, parse_scenario
 from stt_drake.run import RunResult
-from stt_drake.scenario import ScenarioError, load_scenario, parse_scenario
 
 SCENARIOS = Path(__file__).resolve().parent / "scenarios"
 

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from stt_drake.config import load_scenario
 from stt_drake.run import RunResult, simulate
-from stt_drake.scenario import load_scenario
 
 DIAGRAMS = Path(__file__).resolve().parent.parent / "diagrams"
 

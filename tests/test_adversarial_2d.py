@@ -14,8 +14,8 @@ from pathlib import Path
 import adversarial
 import pytest
 
+from stt_drake.config import load_scenario
 from stt_drake.run import RunResult, simulate
-from stt_drake.scenario import load_scenario
 
 CORPUS = adversarial.corpus("omni_")
 

@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 from adversarial import check_file, corpus, expectation, scenario_data
 
+from stt_drake.config import load_scenario
 from stt_drake.run import RunResult, simulate
-from stt_drake.scenario import load_scenario
 
 CORPUS = corpus("uav_")
 IDS = [path.stem for path in CORPUS]

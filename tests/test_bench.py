@@ -10,8 +10,8 @@ import pytest
 from scipy.stats import ncx2
 
 from stt_drake import bench
-from stt_drake.cli import main
-from stt_drake.probability import avoid_probability
+from stt_drake.cli.main import main
+from stt_drake.core.probability import avoid_probability
 
 
 @pytest.mark.parametrize("n", [2, 3])

@@ -31,9 +31,9 @@ from stt_drake.campaign import (
     sample_true_obstacles,
     sample_xi,
 )
-from stt_drake.cli import main
+from stt_drake.cli.main import main
+from stt_drake.config import load_scenario
 from stt_drake.run import simulate
-from stt_drake.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 CASE1 = ROOT / "diagrams" / "omni_hardware_case1.yaml"

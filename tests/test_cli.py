@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from conftest import INVARIANT_KEYS
 
-from stt_drake.cli import main
+from stt_drake.cli.main import main
 
 ROOT = Path(__file__).resolve().parent.parent
 CASE1 = ROOT / "diagrams" / "omni_hardware_case1.yaml"

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stt_drake.belief import ObstacleBelief
-from stt_drake.invariants import HOLDS_TOLERANCE, INVARIANT_NAMES
-from stt_drake.probability import avoid_probability, ball_avoid_probability
+from stt_drake.core.belief import ObstacleBelief
+from stt_drake.core.invariants import HOLDS_TOLERANCE, INVARIANT_NAMES
+from stt_drake.core.probability import avoid_probability, ball_avoid_probability
 
 SCENARIOS = [
     "omni_hardware_case1",

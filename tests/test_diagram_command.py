@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from stt_drake.cli import main
-from stt_drake.diagram_command import write_diagram_pictures
+from stt_drake.cli.diagram import write_diagram_pictures
+from stt_drake.cli.main import main
 
 ROOT = Path(__file__).resolve().parent.parent
 CASE1 = ROOT / "diagrams" / "omni_hardware_case1.yaml"

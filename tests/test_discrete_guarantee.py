@@ -1,5 +1,5 @@
 """The real-time (fixed-rate) tube's guarantee, bounded centre speed, recovery and the 3D
-circulation axes (stt_drake.tube, "Discrete-time guarantee").
+circulation axes (stt_drake.core.tube, "Discrete-time guarantee").
 
 References are independent of the code under test: scipy.stats.ncx2 for every avoidance
 probability of a *true* belief, Monte Carlo sampling of obstacle centres, and the closed
@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from scipy.stats import ncx2
 
-from stt_drake import backend
-from stt_drake.belief import ObstacleBelief
-from stt_drake.probability import period_avoid_probability, segment_avoid_lower_bound
-from stt_drake.tube import BeliefRateBounds, TubeLaw, carry_circulation, null_space_direction
+from stt_drake.core import backend
+from stt_drake.core.belief import ObstacleBelief
+from stt_drake.core.probability import period_avoid_probability, segment_avoid_lower_bound
+from stt_drake.core.tube import BeliefRateBounds, TubeLaw, carry_circulation, null_space_direction
 
 RNG_SEED = 20261122
 
@@ -212,7 +212,7 @@ def test_end_radius_bound_keeps_the_linear_radius_under_the_lipschitz_envelope()
     """For random r_k ≤ D0, D ≤ D0 and ℓ: the linear radius from r_k to the bound stays
     under max(D0 − sℓ, D) on a dense grid of s, and 1 mm more crosses it somewhere (the
     bound is the largest such end radius)."""
-    from stt_drake.tube import end_radius_bound
+    from stt_drake.core.tube import end_radius_bound
 
     rng = np.random.default_rng(RNG_SEED)
     s = np.linspace(0.0, 1.0, 2001)

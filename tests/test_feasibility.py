@@ -1,4 +1,4 @@
-"""What a scenario may ask of the plant and of the fixed-rate tube (stt_drake.feasibility):
+"""What a scenario may ask of the plant and of the fixed-rate tube (stt_drake.build.feasibility):
 the admissible update period, the speed the saturated controller can follow, the derived
 max_center_speed and the validation warnings. Expected values are the closed forms of the
 module docstring, computed here from the scenario's numbers."""
@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from scipy.stats import ncx2
 
-from stt_drake import feasibility
-from stt_drake.scenario import ScenarioError, parse_scenario
+from stt_drake.build import feasibility
+from stt_drake.config import ScenarioError, parse_scenario
 
 RHO_MAX = 2.0 * math.atanh(1.0 - 1e-9)  # ρ₁ at the controller's saturated error
 
@@ -157,7 +157,7 @@ def test_claim_ii_warning_uses_the_saturated_law_escape_speed(k3, warned):
 
 def test_fr3_lever_arms_bound_the_jacobian():
     """‖J(q) e‖ ≤ Σ_i ℓ_i |e_i| at random configurations and joint-velocity errors."""
-    from stt_drake.systems.franka import ArmKinematics, fr3_lever_arm_bounds
+    from stt_drake.systems.plants.franka import ArmKinematics, fr3_lever_arm_bounds
 
     lever = fr3_lever_arm_bounds()
     assert np.all(np.diff(lever) <= 1e-12)  # shorter towards the hand

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from pydrake.multibody.tree import JacobianWrtVariable
 
-from stt_drake.manipulator import ArmLimits
-from stt_drake.systems.franka import FR3_HOME, FR3_TCP, ArmKinematics, make_fr3_plant
+from stt_drake.core.arm import ArmLimits
+from stt_drake.systems.plants.franka import FR3_HOME, FR3_TCP, ArmKinematics, make_fr3_plant
 
 # Modified (Craig) DH table of the Franka docs: (a, d, alpha) per joint, then the flange.
 DH = [

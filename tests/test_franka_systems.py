@@ -16,8 +16,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from test_franka_model import EFFORT, POSITION_LOWER, POSITION_UPPER, VELOCITY, dh_frames
 
-from stt_drake.control import BoxFunnel, FunnelController
-from stt_drake.manipulator import (
+from stt_drake.config import ScenarioError, parse_scenario, task_targets
+from stt_drake.core.arm import (
     ArmFunnelLaw,
     ArmLimits,
     JerkWindow,
@@ -26,8 +26,8 @@ from stt_drake.manipulator import (
     limit_report,
     segment_report,
 )
-from stt_drake.scenario import ScenarioError, parse_scenario, task_targets
-from stt_drake.systems.franka import (
+from stt_drake.core.control import BoxFunnel, FunnelController
+from stt_drake.systems.plants.franka import (
     FR3_HOME,
     ArmMeasurement,
     ArmRobotInterface,

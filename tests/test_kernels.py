@@ -1,5 +1,5 @@
-"""Tests of the compiled kernels (stt_drake.kernels) and of the switch between them and
-the numpy reference path (stt_drake.backend).
+"""Tests of the compiled kernels (stt_drake.core._kernels) and of the switch between them and
+the numpy reference path (stt_drake.core.backend).
 
 References, none of them the code under test:
 * ``scipy.stats.ncx2`` through its public interface (sf, cdf, ppf, isf, pdf), over
@@ -23,18 +23,19 @@ import pytest
 from scipy import special
 from scipy.stats import ncx2
 
-from stt_drake import backend, kernels
-from stt_drake.belief import ObstacleBelief
 from stt_drake.bench import obstacle_field
-from stt_drake.control import BoxFunnel, FunnelController
-from stt_drake.invariants import evaluate_invariants, evaluate_invariants_packed
-from stt_drake.probability import (
+from stt_drake.core import _kernels as kernels
+from stt_drake.core import backend
+from stt_drake.core.belief import ObstacleBelief
+from stt_drake.core.control import BoxFunnel, FunnelController
+from stt_drake.core.invariants import evaluate_invariants, evaluate_invariants_packed
+from stt_drake.core.probability import (
     PRUNE_HEADROOM_NU,
     noncentral_chi_isf,
     noncentral_chi_sf,
     quantile_distance,
 )
-from stt_drake.tube import TubeLaw
+from stt_drake.core.tube import TubeLaw
 
 DIMENSIONS = (1, 2, 3)
 #: Noncentralities λ = a²: exactly 0, tiny, and a log grid up to the issue's 1e5.
@@ -385,8 +386,9 @@ def _python(code: str, **env: str) -> str:
 def test_importing_the_package_does_not_import_numba():
     code = (
         "import sys\n"
-        "import stt_drake.tube, stt_drake.probability, stt_drake.control, stt_drake.invariants\n"
-        "print('numba' in sys.modules, 'stt_drake.kernels' in sys.modules)"
+        "import stt_drake.core.tube, stt_drake.core.probability\n"
+        "import stt_drake.core.control, stt_drake.core.invariants\n"
+        "print('numba' in sys.modules, 'stt_drake.core._kernels' in sys.modules)"
     )
     assert _python(code, STT_DRAKE_PURE_NUMPY="") == "False False"
 
@@ -394,8 +396,8 @@ def test_importing_the_package_does_not_import_numba():
 def test_environment_variable_selects_the_numpy_path():
     code = (
         "import sys, numpy as np\n"
-        "from stt_drake import backend\n"
-        "from stt_drake.probability import noncentral_chi_sf\n"
+        "from stt_drake.core import backend\n"
+        "from stt_drake.core.probability import noncentral_chi_sf\n"
         "noncentral_chi_sf(np.ones(3), np.ones(3), 2)\n"
         "print(backend.using_compiled(), 'numba' in sys.modules)"
     )
@@ -419,9 +421,9 @@ def test_closed_loop_agrees_between_paths():
 
     from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 
-    from stt_drake.builders import build_diagram
-    from stt_drake.invariants import InvariantTracker
-    from stt_drake.scenario import load_scenario
+    from stt_drake.build.diagram import build_diagram
+    from stt_drake.config import load_scenario
+    from stt_drake.core.invariants import InvariantTracker
 
     scenario = load_scenario(Path(__file__).parent.parent / "diagrams/omni_hardware_case1.yaml")
 

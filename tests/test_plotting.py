@@ -10,8 +10,9 @@ from matplotlib.colors import to_rgba, to_rgba_array
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle
 
-from stt_drake.belief import ObstacleBelief
-from stt_drake.invariants import evaluate_invariants
+from stt_drake.core.belief import ObstacleBelief
+from stt_drake.core.invariants import evaluate_invariants
+from stt_drake.core.probability import avoid_probability
 from stt_drake.plotting import (
     PALETTE,
     level_set_radius,
@@ -22,7 +23,6 @@ from stt_drake.plotting import (
     reach_time,
     save_run_figures,
 )
-from stt_drake.probability import avoid_probability
 
 SAMPLES = 50
 R_MIN = 0.1

@@ -1,4 +1,4 @@
-"""Tests of stt_drake.probability against independent references.
+"""Tests of stt_drake.core.probability against independent references.
 
 References used here, none of them the code under test:
 * ``scipy.stats.ncx2`` (sf, ppf, isf) through its public ``rv_continuous`` interface;
@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 from scipy import integrate, special
 from scipy.stats import ncx2
 
-from stt_drake.probability import (
+from stt_drake.core.probability import (
     avoid_probability,
     ball_avoid_probability,
     noncentral_chi_sf,

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stt_drake.invariants import HOLDS_TOLERANCE, reach_story, tube_reach_time
-from stt_drake.motion import ConstantVelocity, Oscillation, Waypoints
-from stt_drake.scenario import Obstacle, load_scenario
+from stt_drake.config import Obstacle, load_scenario
+from stt_drake.core.invariants import HOLDS_TOLERANCE, reach_story, tube_reach_time
+from stt_drake.core.motion import ConstantVelocity, Oscillation, Waypoints
 from stt_drake.story import (
     belief_discontinuities,
     recovery_episodes,
@@ -278,7 +278,7 @@ def test_closed_loop_run_records_the_broken_assumption_and_the_warnings(
     record Assumption 3.1 twice — before the run from the scenario (explicit obstacle at
     the end) and from the log after t_c — plus the scenario's validation warnings."""
     from stt_drake import run as run_module
-    from stt_drake.cli import main
+    from stt_drake.cli.main import main
 
     text = (ROOT / "diagrams" / "omni_hardware_case1.yaml").read_text()
     path = tmp_path / "near.yaml"

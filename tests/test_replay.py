@@ -21,7 +21,7 @@ import pytest
 from conftest import INVARIANT_KEYS
 from test_plotting import make_log
 
-from stt_drake.belief import ObstacleBelief
+from stt_drake.core.belief import ObstacleBelief
 from stt_drake.replay import write_meshcat_replay
 
 ROOT = Path(__file__).resolve().parent.parent

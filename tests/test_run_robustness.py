@@ -16,16 +16,16 @@ import numpy as np
 import pytest
 
 from stt_drake import run as run_module
-from stt_drake.cli import main
+from stt_drake.cli.main import main
+from stt_drake.config import ScenarioError, load_scenario, validate
 from stt_drake.run import simulate
-from stt_drake.scenario import ScenarioError, load_scenario, validate
 from stt_drake.systems.monitor import (
     DEFAULT_MAX_STEPS_PER_SECOND,
     WATCHDOG_WINDOW_STEPS,
     StepRateWatchdog,
     step_rate_limit,
 )
-from stt_drake.systems.omni import OmniRobot
+from stt_drake.systems.plants.omni import OmniRobot
 
 ROOT = Path(__file__).resolve().parent.parent
 CASE1 = ROOT / "diagrams" / "omni_hardware_case1.yaml"
@@ -224,8 +224,8 @@ def test_exceptions_inside_advance_to_end_the_cli_run_cleanly(tmp_path):
     script = textwrap.dedent(
         """
         import math, sys
-        from stt_drake.cli import main
-        from stt_drake.systems.omni import OmniRobot
+        from stt_drake.cli.main import main
+        from stt_drake.systems.plants.omni import OmniRobot
 
         derivatives_of = OmniRobot.DoCalcTimeDerivatives
         how = sys.argv[1]

@@ -1,4 +1,4 @@
-"""Bad-input and expansion tests of the scenario loader (stt_drake.scenario).
+"""Bad-input and expansion tests of the scenario loader (stt_drake.config).
 
 Every bad file is built from one small valid base scenario (a dict dumped to YAML) by
 changing one field, and must be rejected with a ScenarioError whose message names the full
@@ -18,14 +18,14 @@ import numpy as np
 import pytest
 import yaml
 
-from stt_drake.motion import Oscillation
-from stt_drake.probability import avoid_probability
-from stt_drake.scenario import (
+from stt_drake.config import (
     ScenarioError,
     load_scenario,
     obstacle_belief,
     parse_scenario,
 )
+from stt_drake.core.motion import Oscillation
+from stt_drake.core.probability import avoid_probability
 
 DIAGRAMS = Path(__file__).resolve().parent.parent / "diagrams"
 EXPECTED_DIAGRAMS = [

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.stats import binom, binomtest
 
-from stt_drake.statistics import (
+from stt_drake.core.statistics import (
     CERTIFIED,
     INCONCLUSIVE,
     VIOLATED,

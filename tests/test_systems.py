@@ -1,4 +1,4 @@
-"""Tests of the Drake systems in stt_drake.systems and of stt_drake.builders.
+"""Tests of the Drake systems in stt_drake.systems and of stt_drake.build.diagram.
 
 Drake's own style: build a small system or diagram, FixValue its inputs on a context,
 evaluate output ports or time derivatives (or advance a short time with a Simulator), and
@@ -20,19 +20,19 @@ from pydrake.systems.framework import DiagramBuilder, EventStatus
 from pydrake.systems.primitives import ConstantVectorSource, Integrator
 from scipy.stats import ncx2
 
-from stt_drake.belief import ObstacleBelief, belief_size
-from stt_drake.builders import build_diagram
-from stt_drake.control import BoxFunnel, FunnelController
-from stt_drake.invariants import INVARIANT_NAMES, InvariantTracker, evaluate_invariants
-from stt_drake.motion import ConstantVelocity, Oscillation, SigmaSchedule, Waypoints
-from stt_drake.probability import avoid_probability
-from stt_drake.scenario import Obstacle, parse_scenario
+from stt_drake.build.diagram import build_diagram
+from stt_drake.config import Obstacle, parse_scenario
+from stt_drake.core.belief import ObstacleBelief, belief_size
+from stt_drake.core.control import BoxFunnel, FunnelController
+from stt_drake.core.invariants import INVARIANT_NAMES, InvariantTracker, evaluate_invariants
+from stt_drake.core.motion import ConstantVelocity, Oscillation, SigmaSchedule, Waypoints
+from stt_drake.core.probability import avoid_probability
+from stt_drake.core.tube import BeliefRateBounds, TubeLaw, linear_zone_for_step
 from stt_drake.systems.belief_source import ObstacleBeliefSource
 from stt_drake.systems.controller import STTController
 from stt_drake.systems.monitor import InvariantMonitor
-from stt_drake.systems.omni import OmniDriveInterface, OmniRobot, wheel_matrix
+from stt_drake.systems.plants.omni import OmniDriveInterface, OmniRobot, wheel_matrix
 from stt_drake.systems.tube import SpatiotemporalTube
-from stt_drake.tube import BeliefRateBounds, TubeLaw, linear_zone_for_step
 
 MARGIN = {name: i for i, name in enumerate(INVARIANT_NAMES)}
 

@@ -1,4 +1,4 @@
-"""Tests of stt_drake.tube (the tube law of paper Sec. 3, with DESIGN.md's fixes).
+"""Tests of stt_drake.core.tube (the tube law of paper Sec. 3, with DESIGN.md's fixes).
 
 Expected values come from independent references: scipy.stats.ncx2 for q_j and d̂_j,
 scipy.special.logsumexp for the soft-min, hand-written formulas from DESIGN.md for ċ,
@@ -17,10 +17,10 @@ from scipy.integrate import solve_ivp
 from scipy.special import logsumexp
 from scipy.stats import ncx2
 
-from stt_drake import backend
-from stt_drake.belief import ObstacleBelief
-from stt_drake.probability import ball_avoid_probability
-from stt_drake.tube import (
+from stt_drake.core import backend
+from stt_drake.core.belief import ObstacleBelief
+from stt_drake.core.probability import ball_avoid_probability
+from stt_drake.core.tube import (
     TubeLaw,
     attraction_flow,
     attraction_reach_time,

@@ -19,13 +19,13 @@ from test_closed_loop import (
 )
 from test_closed_loop import test_tube_stays_in_target_after_reach_time as check_stay
 
-from stt_drake.belief import ObstacleBelief
-from stt_drake.invariants import INVARIANT_NAMES
+from stt_drake.config import Quadrotor as QuadrotorConfig
+from stt_drake.config import ScenarioError, load_scenario, parse_scenario
+from stt_drake.core.belief import ObstacleBelief
+from stt_drake.core.invariants import INVARIANT_NAMES
+from stt_drake.core.tube import null_space_direction
 from stt_drake.run import RunResult, simulate
-from stt_drake.scenario import Quadrotor as QuadrotorConfig
-from stt_drake.scenario import ScenarioError, load_scenario, parse_scenario
-from stt_drake.systems.quadrotor import Quadrotor
-from stt_drake.tube import null_space_direction
+from stt_drake.systems.plants.quadrotor import Quadrotor
 
 DIAGRAMS = Path(__file__).resolve().parent.parent / "diagrams"
 SCENARIOS = ["uav_paper", "uav_cluttered", "uav_authors_field"]

@@ -5,15 +5,15 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.framework import BasicVector, Context, LeafSystem
 
-from stt_drake import backend
-from stt_drake.belief import belief_size, record_size
-from stt_drake.motion import ConstantVelocity, Oscillation
-from stt_drake.scenario import Obstacle, obstacle_belief, obstacle_sigma
+from stt_drake.config import Obstacle, obstacle_belief, obstacle_sigma
+from stt_drake.core import backend
+from stt_drake.core.belief import belief_size, record_size
+from stt_drake.core.motion import ConstantVelocity, Oscillation
 
 
 class ObstacleBeliefSource(LeafSystem):
     """Outputs `obstacle_belief`: [mean, sigma, radius, epsilon, p_d] per obstacle
-    (layout in :mod:`stt_drake.belief`), from each obstacle's motion model and σ schedule.
+    (layout in :mod:`stt_drake.core.belief`), from each obstacle's motion model and σ schedule.
 
     Stands in for a tracker or SLAM front end; a user with a real one replaces this system
     by anything that writes the same port.
@@ -21,8 +21,8 @@ class ObstacleBeliefSource(LeafSystem):
     The obstacles are read once, at construction: the constant fields are packed into a
     template, and oscillating and constant-velocity means are evaluated for all obstacles
     of a kind in one numpy expression (the same arithmetic as
-    :meth:`stt_drake.motion.Oscillation.position` and
-    :meth:`stt_drake.motion.ConstantVelocity.position`); other motion models and σ
+    :meth:`stt_drake.core.motion.Oscillation.position` and
+    :meth:`stt_drake.core.motion.ConstantVelocity.position`); other motion models and σ
     schedules are evaluated per obstacle.
     """
 

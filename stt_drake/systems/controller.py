@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pydrake.systems.framework import BasicVector, Context, LeafSystem
 
-from stt_drake.control import FunnelController
+from stt_drake.core.control import FunnelController
 
 
 class STTController(LeafSystem):

@@ -16,8 +16,8 @@ from pydrake.systems.framework import (
     ValueProducer,
 )
 
-from stt_drake.belief import belief_size
-from stt_drake.invariants import INVARIANT_NAMES, InvariantTracker, evaluate_invariants_packed
+from stt_drake.core.belief import belief_size
+from stt_drake.core.invariants import INVARIANT_NAMES, InvariantTracker, evaluate_invariants_packed
 
 #: Default step-rate limit L (integrator steps per simulated second) of the watchdog, used
 #: when a scenario's ``max_steps_per_second`` is 0. Chosen so that no scenario here runs
@@ -116,7 +116,7 @@ class StepRateWatchdog:
 
 class InvariantMonitor(LeafSystem):
     """Inputs `tube`, `obstacle_belief`, `output` (y); outputs `margins` (one per name in
-    :data:`stt_drake.invariants.INVARIANT_NAMES`), `output_avoid_probability` (m) and
+    :data:`stt_drake.core.invariants.INVARIANT_NAMES`), `output_avoid_probability` (m) and
     `tube_avoid_probability` (m). Recomputes every probability itself rather than trusting
     the tube's diagnostics, so a bug in the tube cannot hide from it."""
 

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 import numpy as np
 from pydrake.systems.framework import BasicVector, Context, DiscreteValues, LeafSystem
 
-from stt_drake.invariants import HOLDS_TOLERANCE
+from stt_drake.core.invariants import HOLDS_TOLERANCE
 
 
 class TargetSequencer(LeafSystem):

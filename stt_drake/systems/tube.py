@@ -17,8 +17,8 @@ from pydrake.systems.framework import (
     ValueProducer,
 )
 
-from stt_drake.belief import ObstacleBelief, belief_size
-from stt_drake.tube import BeliefRateBounds, TubeEvaluation, TubeLaw, carry_circulation
+from stt_drake.core.belief import ObstacleBelief, belief_size
+from stt_drake.core.tube import BeliefRateBounds, TubeEvaluation, TubeLaw, carry_circulation
 
 
 class SpatiotemporalTube(LeafSystem):
@@ -27,7 +27,7 @@ class SpatiotemporalTube(LeafSystem):
     Input `obstacle_belief`; outputs `tube` = [c, r] (n + 1), `diagnostics` =
     [q_j (m), d̂_j (m), θ_j (m)] and `recovery` (m): 1 while the tube is recovering from
     obstacle j (its belief left the bounds the guarantee relies on; see
-    :mod:`stt_drake.tube`), else 0.
+    :mod:`stt_drake.core.tube`), else 0.
 
     Two modes:
 

@@ -23,9 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stt_drake import backend
-from stt_drake.belief import ObstacleBelief, record_size
-from stt_drake.probability import COMPILED_DIMENSIONS, avoid_probability
+from stt_drake.core import backend
+from stt_drake.core.belief import ObstacleBelief, record_size
+from stt_drake.core.probability import COMPILED_DIMENSIONS, avoid_probability
 
 INVARIANT_NAMES = (
     "output_in_tube",
@@ -53,8 +53,8 @@ def evaluate_invariants(
 ) -> InvariantSample:
     """Compute every margin at one instant, independently of the tube's own diagnostics.
 
-    One call of the compiled :func:`stt_drake.kernels.invariant_margins` for n ≤ 3 (unless
-    the numpy path is selected, see :mod:`stt_drake.backend`), else numpy.
+    One call of the compiled :func:`stt_drake.core._kernels.invariant_margins` for n ≤ 3 (unless
+    the numpy path is selected, see :mod:`stt_drake.core.backend`), else numpy.
     """
     kernels = backend.kernels()
     if kernels is not None and belief.mean.shape[-1] in COMPILED_DIMENSIONS:
@@ -89,7 +89,7 @@ def evaluate_invariants_packed(
     output: np.ndarray, tube: np.ndarray, belief_vector: np.ndarray, r_min: float
 ) -> InvariantSample:
     """:func:`evaluate_invariants` on port vectors: `tube` = [c, r] and the belief vector
-    (layout of :mod:`stt_drake.belief`) — one compiled call, no ObstacleBelief built (the
+    (layout of :mod:`stt_drake.core.belief`) — one compiled call, no ObstacleBelief built (the
     monitor's hot path)."""
     output = np.asarray(output, dtype=float)
     dimension = output.shape[0]

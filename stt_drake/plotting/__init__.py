@@ -12,7 +12,7 @@ belief                     (T, m·(n+4)) obstacle-major records [mean, σ, r_o, 
 avoid_probability          (T, m) q_j at the centre
 quantile_distance, theta   (T, m)
 control                    (T, n)
-margins                    (T, 5) in ``stt_drake.invariants.INVARIANT_NAMES`` order
+margins                    (T, 5) in ``stt_drake.core.invariants.INVARIANT_NAMES`` order
 output_avoid_probability   (T, m) P(‖y − O_j‖ ≥ r_o_j)
 dimension, start, target,  scalars / (n,) arrays describing the task
 initial_set_radius,
@@ -49,9 +49,9 @@ from matplotlib.patches import Circle, Patch
 from mpl_toolkits.mplot3d.art3d import Line3DCollection
 from scipy.optimize import brentq
 
-from stt_drake.belief import ObstacleBelief
-from stt_drake.invariants import tube_reach_time
-from stt_drake.probability import noncentral_chi_sf
+from stt_drake.core.belief import ObstacleBelief
+from stt_drake.core.invariants import tube_reach_time
+from stt_drake.core.probability import noncentral_chi_sf
 
 #: The one visual language of every figure.
 PALETTE: dict[str, Any] = {

@@ -3,8 +3,8 @@ evaluation and per invariant check.
 
 Why a second implementation exists
 ----------------------------------
-The vectorised numpy/scipy code in :mod:`stt_drake.probability`, :mod:`stt_drake.tube`,
-:mod:`stt_drake.control` and :mod:`stt_drake.invariants` is the *reference*: short, close
+The vectorised numpy/scipy code in :mod:`stt_drake.core.probability`, :mod:`stt_drake.core.tube`,
+:mod:`stt_drake.core.control` and :mod:`stt_drake.core.invariants` is the *reference*: short, close
 to the paper's equations, and built on scipy's Boost noncentral χ² for n = 2 and for the
 quantile. At the problem sizes of a robot (tens of obstacles) it spends almost all its time
 in numpy's ~1 µs per-call overhead (a tube step is ~60 small numpy calls), not in
@@ -21,8 +21,8 @@ numpy path is fastest with too; they are a few lines each.
 numba (rather than Cython/C++): it is a pinned dependency already, needs no compiler
 toolchain at install time, and with ``cache=True`` compiles once per machine into
 ``__pycache__`` (a few seconds on first use; importing :mod:`stt_drake` does not import
-this module — :func:`stt_drake.backend.kernels` loads it on first need).
-``STT_DRAKE_PURE_NUMPY=1`` (or :func:`stt_drake.backend.pure_numpy`) selects the reference
+this module — :func:`stt_drake.core.backend.kernels` loads it on first need).
+``STT_DRAKE_PURE_NUMPY=1`` (or :func:`stt_drake.core.backend.pure_numpy`) selects the reference
 path instead.
 
 Notation (paper Sec. 3, Prop. 1): for Z ~ N(a·e, I_n), a = ‖x − μ_j‖/σ_j, ‖Z‖ is
@@ -39,7 +39,7 @@ import numpy as np
 from numba import njit
 from scipy import special
 
-from stt_drake.probability import PRUNE_HEADROOM_NU
+from stt_drake.core.probability import PRUNE_HEADROOM_NU
 
 _JIT = {"cache": True, "error_model": "numpy", "nogil": True}
 
@@ -498,7 +498,7 @@ def _distance(point: np.ndarray, mean: np.ndarray, j: int) -> float:
 def _add_null_space(
     rate: np.ndarray, m: np.ndarray, goal: np.ndarray, circulation: np.ndarray, weight: float
 ) -> None:
-    """rate += weight·v, v ⟂ m with |v| = |m| (:func:`stt_drake.tube.null_space_direction`):
+    """rate += weight·v, v ⟂ m with |v| = |m| (:func:`stt_drake.core.tube.null_space_direction`):
     n = 2, m rotated by +90°; n ≥ 3, along ω × m for a chosen circulation axis ω (zero: not
     chosen), else the part of the goal direction orthogonal to m, else of e_{n−1}, else of
     e_0 (the first whose orthogonal part is not degenerate)."""
@@ -574,7 +574,7 @@ def period_avoid_probability(
     distance: float, sigma: float, radius: float, reach: float, spread: float, n: int
 ) -> float:
     """Lower bound of P(‖x − O‖ ≥ radius) over the beliefs reachable within a horizon
-    (:func:`stt_drake.probability.period_avoid_probability`): the offset shrinks by
+    (:func:`stt_drake.core.probability.period_avoid_probability`): the offset shrinks by
     `reach` and the radius grows by spread·(distance + reach + radius)."""
     offset = distance - reach
     if offset < 0.0:
@@ -598,7 +598,7 @@ def tube_step(
     circulation: np.ndarray,
     constants: np.ndarray,
 ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
-    """One tube-law evaluation (:meth:`stt_drake.tube.TubeLaw.evaluate`) in one pass.
+    """One tube-law evaluation (:meth:`stt_drake.core.tube.TubeLaw.evaluate`) in one pass.
 
     Per obstacle j: q_j (eq. prob_q; with `reach`/`spread` the period lower bound of
     :func:`period_avoid_probability`, empty arrays = exact), d̂_j (eq. m_crv, always at the
@@ -723,7 +723,7 @@ def _recovery_velocity(
 def _inflation(
     sigma: np.ndarray, mean_speed: np.ndarray, sigma_rate: np.ndarray, horizon: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(reach, spread) of :meth:`stt_drake.tube.BeliefRateBounds.inflation`."""
+    """(reach, spread) of :meth:`stt_drake.core.tube.BeliefRateBounds.inflation`."""
     reach = mean_speed * horizon
     spread = np.empty(sigma.shape[0])
     for j in range(sigma.shape[0]):
@@ -736,7 +736,7 @@ def _inflation(
 def _segment_distances(
     start: np.ndarray, end: np.ndarray, mean: np.ndarray, j: int
 ) -> tuple[float, float]:
-    """:func:`stt_drake.probability.segment_distances` for obstacle j."""
+    """:func:`stt_drake.core.probability.segment_distances` for obstacle j."""
     length2 = 0.0
     along = 0.0
     for i in range(start.shape[0]):
@@ -763,7 +763,7 @@ def _segment_avoid_lower_bound(
     reach: float,
     spread: float,
 ) -> float:
-    """:func:`stt_drake.probability.segment_avoid_lower_bound` for obstacle j."""
+    """:func:`stt_drake.core.probability.segment_avoid_lower_bound` for obstacle j."""
     n = start.shape[0]
     nearest, farthest = _segment_distances(start, end, mean, j)
     grown = radius + spread * (farthest + reach + radius)
@@ -784,7 +784,7 @@ def _segment_quantile_lower_bound(
     spread: float,
     prune_above: float,
 ) -> float:
-    """:func:`stt_drake.probability.segment_quantile_lower_bound` for obstacle j; where the
+    """:func:`stt_drake.core.probability.segment_quantile_lower_bound` for obstacle j; where the
     cheap bound σ·max(a − Φ⁻¹(ε), 0) already gives more than `prune_above`, that bound."""
     n = start.shape[0]
     nearest, farthest = _segment_distances(start, end, mean, j)
@@ -814,7 +814,7 @@ def tube_advance(
     start_radius: float,
     max_attempts: int,
 ) -> tuple[np.ndarray, np.ndarray, int, float, float]:
-    """:meth:`stt_drake.tube.TubeLaw.advance` in one call (same steps, same rules):
+    """:meth:`stt_drake.core.tube.TubeLaw.advance` in one call (same steps, same rules):
     sub-steps of the law with the look-ahead bound over 2·duration, each keeping every
     positive gap at least half; then the segment certificate over one duration, pulled back
     towards `center` until it holds and the end radius the segment allows
@@ -977,7 +977,7 @@ def _point_quantile_lower_bounds(
 def _end_radius_bound(
     start_radius: float, at_start: float, on_segment: float, length: float
 ) -> float:
-    """:func:`stt_drake.tube.end_radius_bound` for one obstacle."""
+    """:func:`stt_drake.core.tube.end_radius_bound` for one obstacle."""
     lipschitz = at_start - length
     if lipschitz >= on_segment:
         return lipschitz
@@ -1004,7 +1004,7 @@ def _cross_unit(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> float:
 def carry_circulation(
     axes: np.ndarray, center: np.ndarray, mean: np.ndarray, active: np.ndarray, goal: np.ndarray
 ) -> np.ndarray:
-    """:func:`stt_drake.tube.carry_circulation` (3D), one loop over the obstacles."""
+    """:func:`stt_drake.core.tube.carry_circulation` (3D), one loop over the obstacles."""
     count = mean.shape[0]
     result = np.zeros((count, 3))
     unit_m = np.empty(3)
@@ -1099,7 +1099,7 @@ def invariant_margins(
     epsilon: np.ndarray,
     r_min: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The margins of :func:`stt_drake.invariants.evaluate_invariants` in one pass.
+    """The margins of :func:`stt_drake.core.invariants.evaluate_invariants` in one pass.
 
     Returns:
         (margins (5,), P(‖y − O_j‖ ≥ r_o_j) (m,), P(‖c − O_j‖ ≥ r_o_j + r) (m,)).
@@ -1180,7 +1180,7 @@ def belief_table(
     """The belief port vector at time t (:class:`stt_drake.systems.belief_source.
     ObstacleBeliefSource`): a copy of the (m, n + 4) `template`, with the means of the
     `oscillating` rows set to center + amplitude·sin(ω t + phase) and those of the `moving`
-    rows to start + t·velocity (the arithmetic of :mod:`stt_drake.motion`)."""
+    rows to start + t·velocity (the arithmetic of :mod:`stt_drake.core.motion`)."""
     table = template.copy()
     n = center.shape[1]
     for k in range(oscillating.shape[0]):
@@ -1214,7 +1214,7 @@ def funnel_control(
     funnel_rate: np.ndarray,
     saturation: float,
 ) -> tuple[np.ndarray, np.ndarray, bool]:
-    """The funnel law of Sec. 5 (:meth:`stt_drake.control.FunnelController.evaluate`).
+    """The funnel law of Sec. 5 (:meth:`stt_drake.core.control.FunnelController.evaluate`).
 
     Stage 1: e₁ = ‖x₁ − c‖/r, r₂ = −κ₁ ρ(e₁)(x₁ − c) (eq. Control_ras a). Stage k ≥ 2:
     γ = (p − q)e^{−μt} + q, e_k = (x_k − r_k)/γ, ξ = 4/(γ(1 − e_k²)), r_{k+1} = −κ_k ξ ρ(e_k)

@@ -20,7 +20,7 @@ Runs go through a :class:`concurrent.futures.Executor`: a local process pool, or
 the runs already there. Summaries are order-independent functions of the set of runs.
 
 Run i uses the seed :func:`run_seed` (campaign seed, i); ``stt-drake run SCENARIO --seed S``
-replays a randomisation run alone. The statistics are in :mod:`stt_drake.statistics`.
+replays a randomisation run alone. The statistics are in :mod:`stt_drake.core.statistics`.
 """
 
 from __future__ import annotations
@@ -43,9 +43,9 @@ from typing import Any
 
 import numpy as np
 
-from stt_drake.belief import ObstacleBelief
-from stt_drake.cli import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS
-from stt_drake.statistics import (
+from stt_drake.cli.main import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS
+from stt_drake.core.belief import ObstacleBelief
+from stt_drake.core.statistics import (
     VIOLATED,
     clopper_pearson,
     family_confidence,
@@ -58,7 +58,7 @@ MOTIONS = ("static", "ou")
 CONFIDENCE = 0.99
 #: The two collision checks of a true-obstacle campaign.
 CHECKS = ("output", "tube")
-#: Loader messages (stt_drake.scenario) that mean "this draw breaks the paper's
+#: Loader messages (stt_drake.config) that mean "this draw breaks the paper's
 #: assumptions" — counted as rejected draws, not as failures.
 REJECTION_MARKERS = (
     "scenario.random_obstacles.count: could not place",
@@ -150,7 +150,7 @@ class ClosedLoop:
 
     def collision_probability(self) -> dict[str, np.ndarray]:
         """The belief's own collision probabilities (T, m) per check (noncentral χ²)."""
-        from stt_drake.probability import avoid_probability
+        from stt_drake.core.probability import avoid_probability
 
         output = avoid_probability(
             self.output[:, None, :], self.mean, self.sigma, self.obstacle_radius
@@ -312,8 +312,8 @@ def randomisation_run(text: str, name: str, index: int, seed: int) -> dict[str, 
     ``simulated`` (then `obstacles`, `reached`, `t_reach`, `holds`, `success` and
     `invariants` as in metrics.json).
     """
+    from stt_drake.config import ScenarioError, parse_scenario
     from stt_drake.run import simulate
-    from stt_drake.scenario import ScenarioError, parse_scenario
 
     record: dict[str, Any] = {"run": index, "seed": seed}
     try:
@@ -578,7 +578,7 @@ def _check_resumable(out_dir: Path, spec: CampaignSpec, text_hash: str, resume: 
 def _load_checked_scenario(spec: CampaignSpec, text: str, name: str) -> Any:
     """The scenario as the campaign sees it (kind 1: the file's seed; kind 2: run 0's draw,
     only to reject bad input up front)."""
-    from stt_drake.scenario import ScenarioError, parse_scenario
+    from stt_drake.config import ScenarioError, parse_scenario
 
     seed = run_seed(spec.seed, 0) if spec.kind == "randomisation" else None
     try:

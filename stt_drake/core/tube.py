@@ -45,9 +45,9 @@ d = x − μ(t):
    Δ of offset.
 
 Hence q_j(x, t) ≥ Q_j^τ(x) := P(‖Z'‖ ≥ (R + γ(a + Δ + R))/σ_k), Z' ~ N(max(a − Δ, 0)/σ_k·e, I),
-for every t in the horizon (:func:`stt_drake.probability.period_avoid_probability`; a
+for every t in the horizon (:func:`stt_drake.core.probability.period_avoid_probability`; a
 Monte Carlo test samples beliefs inside the bounds). On a segment, take the offset at the
-closest point and the radius at the farthest (:func:`stt_drake.probability.
+closest point and the radius at the farthest (:func:`stt_drake.core.probability.
 segment_avoid_lower_bound`).
 
 The update (:meth:`TubeLaw.advance`) at t_k, from the centre c_k reached at t_k:
@@ -71,7 +71,7 @@ update escapes along the recovery direction at v_c, and the run records it.
 
 The radius over a period. The same coupling bounds the quantile distance d̂_j from below
 over the period: D0_j at c_k and D_j over the whole segment
-(:func:`stt_drake.probability.segment_quantile_lower_bound`). The radius moves linearly
+(:func:`stt_drake.core.probability.segment_quantile_lower_bound`). The radius moves linearly
 from r_k ≤ min_j D0_j to r_{k+1}, and d̂_j is 1-Lipschitz in the point, so at the fraction
 s of the period d̂_j ≥ max(D0_j − sℓ, D_j) with ℓ = ‖c_{k+1} − c_k‖. A linear r(s) stays
 below that bound for the largest r_{k+1} of :func:`end_radius_bound`; r_{k+1} is the
@@ -91,9 +91,9 @@ from functools import cached_property
 
 import numpy as np
 
-from stt_drake import backend
-from stt_drake.belief import ObstacleBelief, record_size
-from stt_drake.probability import (
+from stt_drake.core import backend
+from stt_drake.core.belief import ObstacleBelief, record_size
+from stt_drake.core.probability import (
     COMPILED_DIMENSIONS,
     PRUNE_HEADROOM_NU,
     avoid_probability,
@@ -204,7 +204,7 @@ def carry_circulation(
     orthogonal to the current m̂_j again and renormalised (re-chosen if that degenerates).
     m̂_j = (c − μ_j)/‖c − μ_j‖ has the direction of m_j (q_j > ε_j while it is active).
 
-    One call of the compiled :func:`stt_drake.kernels.carry_circulation` unless the numpy
+    One call of the compiled :func:`stt_drake.core._kernels.carry_circulation` unless the numpy
     path is selected (the code below is its reference)."""
     kernels = backend.kernels()
     if kernels is not None:
@@ -376,7 +376,7 @@ class TubeLaw:
     @cached_property
     def _kernel_constants(self) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         """(k2, k3, constants by pruning mode) as float arrays for the compiled kernel
-        (layout: :data:`stt_drake.kernels.TUBE_CONSTANTS`, then η); once per law. Modes:
+        (layout: :data:`stt_drake.core._kernels.TUBE_CONSTANTS`, then η); once per law. Modes:
         "pruned", "exact" (every quantile) and "rate" (ċ, q, θ only; the compiled kernel
         then returns NaN for d̂ and r)."""
         target = np.asarray(self.target, dtype=float).ravel()
@@ -414,8 +414,8 @@ class TubeLaw:
     ) -> TubeEvaluation:
         """Evaluate ċ, r and the diagnostics at the centre `center` (n,).
 
-        One call of the compiled :func:`stt_drake.kernels.tube_step` for n ≤ 3 (unless the
-        numpy path is selected, see :mod:`stt_drake.backend`), else the numpy reference
+        One call of the compiled :func:`stt_drake.core._kernels.tube_step` for n ≤ 3 (unless the
+        numpy path is selected, see :mod:`stt_drake.core.backend`), else the numpy reference
         below. `prune=False` computes every d̂_j exactly (see :attr:`prune_above`).
         `circulation`: (m, 3) axes ω_j of :func:`carry_circulation` (3D). `inflation`:
         (Δ, γ) of :meth:`BeliefRateBounds.inflation`; q_j, θ_j and ċ then use the period
@@ -466,7 +466,7 @@ class TubeLaw:
         prune: bool = True,
         circulation: np.ndarray | None = None,
     ) -> TubeEvaluation:
-        """:meth:`evaluate` on a belief port vector (layout of :mod:`stt_drake.belief`),
+        """:meth:`evaluate` on a belief port vector (layout of :mod:`stt_drake.core.belief`),
         without building the :class:`ObstacleBelief` (the Drake system's hot path)."""
         kernels = backend.kernels()
         dimension = len(center)
@@ -590,7 +590,7 @@ class TubeLaw:
         and the look-ahead's distance bounds at the new centre, so the whole ball is
         certified too (module docstring, "The radius over a period").
 
-        One call of the compiled :func:`stt_drake.kernels.tube_advance` for n ≤ 3 (unless
+        One call of the compiled :func:`stt_drake.core._kernels.tube_advance` for n ≤ 3 (unless
         the numpy path is selected); the code below is its reference.
 
         Returns:

@@ -12,22 +12,22 @@ from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, OutputPort
 from pydrake.systems.primitives import LogVectorOutput, MatrixGain, Sine, VectorLogSink
 
-from stt_drake.control import BoxFunnel, FunnelController
-from stt_drake.feasibility import center_speed, rate_bounds
-from stt_drake.manipulator import (
+from stt_drake.core.control import BoxFunnel, FunnelController
+from stt_drake.build.feasibility import center_speed, rate_bounds
+from stt_drake.core.arm import (
     ArmFunnelLaw,
     ArmLimits,
     JerkWindow,
     JointSpaceMapping,
     arm_metrics,
 )
-from stt_drake.scenario import FrankaArm as FrankaArmConfig
-from stt_drake.scenario import OmniRobot as OmniRobotConfig
-from stt_drake.scenario import Quadrotor as QuadrotorConfig
-from stt_drake.scenario import Scenario, initial_output, task_targets
+from stt_drake.config import FrankaArm as FrankaArmConfig
+from stt_drake.config import OmniRobot as OmniRobotConfig
+from stt_drake.config import Quadrotor as QuadrotorConfig
+from stt_drake.config import Scenario, initial_output, task_targets
 from stt_drake.systems.belief_source import ObstacleBeliefSource
 from stt_drake.systems.controller import STTController
-from stt_drake.systems.franka import (
+from stt_drake.systems.plants.franka import (
     FR3_HOME,
     ArmKinematics,
     ArmMeasurement,
@@ -39,11 +39,11 @@ from stt_drake.systems.franka import (
     make_fr3_plant,
 )
 from stt_drake.systems.monitor import InvariantMonitor
-from stt_drake.systems.omni import OmniDriveInterface, OmniRobot
-from stt_drake.systems.quadrotor import Quadrotor
+from stt_drake.systems.plants.omni import OmniDriveInterface, OmniRobot
+from stt_drake.systems.plants.quadrotor import Quadrotor
 from stt_drake.systems.sequencer import TargetSequencer
 from stt_drake.systems.tube import SpatiotemporalTube
-from stt_drake.tube import TubeLaw, linear_zone_for_step
+from stt_drake.core.tube import TubeLaw, linear_zone_for_step
 
 
 @dataclass
@@ -89,12 +89,12 @@ class SttDiagram:
 
 def make_tube_law(scenario: Scenario) -> TubeLaw:
     """The tube law with the scenario's constants (ν and max_center_speed derived when not
-    given, :func:`stt_drake.feasibility.center_speed`).
+    given, :func:`stt_drake.build.feasibility.center_speed`).
 
     The attraction gets the linear zone δ = (k1·h)^{3/2} of the longest step h that
     integrates it — the simulator's max step in continuous time, the update period at a
     fixed rate — so no step of h overshoots η (see
-    :func:`stt_drake.tube.signed_cube_root_attraction`).
+    :func:`stt_drake.core.tube.signed_cube_root_attraction`).
     """
     config = scenario.tube
     rate = config.update_rate_hz

@@ -5,7 +5,7 @@ Pure numpy, no Drake. Each model is a dataclass that a scenario YAML names with 
 
 Each also bounds how fast it changes (``speed_bound`` in m/s, ``rate_bound`` in m/s for σ):
 the fixed-rate tube needs those bounds to keep its guarantee over a whole update period
-(:mod:`stt_drake.tube`, "Discrete-time guarantee"). A piecewise-linear model may repeat a
+(:mod:`stt_drake.core.tube`, "Discrete-time guarantee"). A piecewise-linear model may repeat a
 time once: that is a step (a belief jump, e.g. a tracker's measurement update), which is
 not part of the rate bound — the tube treats it as a discontinuity and recovers from it.
 """

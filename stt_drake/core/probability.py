@@ -9,9 +9,9 @@ freedom and noncentrality λ = a² (Proposition 1). So
 * the quantile distance d̂_j (eq. m_crv) is sigma·sqrt(F⁻¹(1 − ε; λ)) − r_o, the largest
   ball radius around x that the obstacle still misses with probability ≥ ε.
 
-Two implementations (selected by :mod:`stt_drake.backend`):
+Two implementations (selected by :mod:`stt_drake.core.backend`):
 
-* compiled, for n = 1, 2, 3 (the default): :mod:`stt_drake.kernels` — closed forms for
+* compiled, for n = 1, 2, 3 (the default): :mod:`stt_drake.core._kernels` — closed forms for
   n = 1, 3, a Bessel series for the n = 2 Marcum Q-function, and a bracketed Halley
   quantile; exact to ~1e-14 (see that module);
 * numpy reference (any n, and the fallback with ``STT_DRAKE_PURE_NUMPY=1``): closed forms
@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import special
 
-from stt_drake import backend
+from stt_drake.core import backend
 
 try:  # the ufuncs behind scipy.stats.ncx2.sf / .isf (same Boost code, no wrapper overhead)
     from scipy.special._ufuncs import _ncx2_isf, _ncx2_sf
@@ -214,7 +214,7 @@ def period_avoid_probability(
     """A lower bound of P(‖point − O_j(t)‖ ≥ radius_j) over every belief reachable within a
     horizon τ from N(mean_j, sigma_j² I): means within `reach` Δ_j = v̄_j τ of mean_j and
     standard deviations in [σ_j − s̄_j τ, σ_j + s̄_j τ], with spread γ_j = σ_j/(σ_j − s̄_j τ) − 1
-    (derivation: :mod:`stt_drake.tube`, "Discrete-time guarantee").
+    (derivation: :mod:`stt_drake.core.tube`, "Discrete-time guarantee").
 
     With a = ‖point − mean_j‖ it is the survival function at the offset max(a − Δ_j, 0) and
     the radius radius_j + γ_j (a + Δ_j + radius_j); Δ = γ = 0 gives :func:`avoid_probability`.
@@ -283,7 +283,7 @@ def segment_quantile_lower_bound(
     every belief reachable within the horizon of (reach, spread): the largest r with
     P(‖x − O_j(t)‖ ≥ r_o_j + r) ≥ ε_j for all those x and beliefs.
 
-    By the coupling of :mod:`stt_drake.tube` the collision event at radius R is inside the
+    By the coupling of :mod:`stt_drake.core.tube` the collision event at radius R is inside the
     event at radius R(1 + γ) + γ(a_max + Δ) + Δ-shifted offset, so any R with
     R(1 + γ) + γ(a_max + Δ) ≤ σ·s_ε(max(a_min − Δ, 0)/σ) is safe, s_ε the noncentral-χ upper
     ε quantile: D_j = (σ s_ε − γ(a_max + Δ))/(1 + γ) − r_o_j. It exceeds r_min exactly when

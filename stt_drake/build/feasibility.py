@@ -3,7 +3,7 @@
 Pure numpy (the arm's lever arms come from its model, loaded only for arm scenarios).
 
 *Following speed.* The controller saturates its normalised error at 1 − 1e-9
-(:data:`stt_drake.control.ERROR_SATURATION`), so ρ₁ ≤ ρ_max ≈ 21.4: at the tube boundary
+(:data:`stt_drake.core.control.ERROR_SATURATION`), so ρ₁ ≤ ρ_max ≈ 21.4: at the tube boundary
 stage 1 pulls the output back at no more than κ₁·ρ_max·r. With r ≥ r_low = r_min −
 ln(n_o + 1)/ν (claim iii, while every q_j > ε_j), the output can close on the centre at
 
@@ -20,7 +20,7 @@ band alone would exceed the saturated stage-1 pull.
 *Tube demand.* The boundary of Γ moves towards the output at |ċ| + |ṙ|. |ċ| ≤ v_c
 (max_center_speed). d̂_j is 1-Lipschitz in c and in μ_j (a quantile of ‖c − O_j‖), and in σ
 |∂(d̂_j + r_o)/∂σ| ≤ (d̂_j + r_o + ‖c − μ_j‖)/σ ≤ (2(d̂_j + r_o) + σ z_ε)/σ (the scale coupling
-of :mod:`stt_drake.tube`, with ‖c − μ‖ ≤ d̂ + r_o + σ z_ε, z_ε the ε-quantile of a central
+of :mod:`stt_drake.core.tube`, with ‖c − μ‖ ≤ d̂ + r_o + σ z_ε, z_ε the ε-quantile of a central
 χ_n); the soft-min radius moves no faster than its fastest argument, and only arguments up
 to r_max + 40/ν matter. So the demand is 2·v_c + max_j w_j with the level-set speed
 w_j = v̄_j + s̄_j (2(r_max + 40/ν + r_o_j) + σ_max,j z_ε)/σ_min,j. Theorem 4.1 under the
@@ -28,7 +28,7 @@ saturated controller needs demand < available; otherwise the run warns (it does 
 refuse: the bound is worst case).
 
 *Update period.* The fixed-rate tube looks ahead two periods (module
-:mod:`stt_drake.tube`). A period h is admissible when, for every obstacle, the look-ahead
+:mod:`stt_drake.core.tube`). A period h is admissible when, for every obstacle, the look-ahead
 growth stays within the obstacle's own size — 2 v̄_j h ≤ r_o_j + r_min (the mean moves at
 most one safety radius) and 2 s̄_j h ≤ σ_min,j/2 (σ at most halves) — and the start is
 certified for the first period, Q^h_j(s) > ε_j at t = 0.
@@ -41,9 +41,9 @@ import math
 import numpy as np
 from scipy import stats
 
-from stt_drake.control import ERROR_SATURATION, transformed_error
-from stt_drake.probability import PRUNE_HEADROOM_NU, period_avoid_probability
-from stt_drake.scenario import (
+from stt_drake.core.control import ERROR_SATURATION, transformed_error
+from stt_drake.core.probability import PRUNE_HEADROOM_NU, period_avoid_probability
+from stt_drake.config import (
     FrankaArm,
     OmniRobot,
     Quadrotor,
@@ -51,7 +51,7 @@ from stt_drake.scenario import (
     ScenarioError,
     obstacle_rate_bounds,
 )
-from stt_drake.tube import BeliefRateBounds
+from stt_drake.core.tube import BeliefRateBounds
 
 #: ρ₁ at the saturated error: the largest pull-back gain of stage 1 (≈ 21.4).
 RHO_MAX = float(transformed_error(np.array(ERROR_SATURATION)))
@@ -81,7 +81,7 @@ def following_speed(scenario: Scenario) -> float:
     if isinstance(plant, Quadrotor):
         return stage_one - float(np.linalg.norm(band))
     if isinstance(plant, FrankaArm):
-        from stt_drake.systems.franka import fr3_lever_arm_bounds
+        from stt_drake.systems.plants.franka import fr3_lever_arm_bounds
 
         return stage_one - float(fr3_lever_arm_bounds() @ band)
     raise TypeError(f"no following speed for plant {type(plant).__name__}")

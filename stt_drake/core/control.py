@@ -19,7 +19,7 @@ from functools import cached_property
 
 import numpy as np
 
-from stt_drake import backend
+from stt_drake.core import backend
 
 #: Largest normalised error the law uses; errors beyond it are saturated here.
 ERROR_SATURATION = 1.0 - 1e-9
@@ -157,8 +157,8 @@ class FunnelController:
     ) -> ControlEvaluation:
         """Control at time t for stacked states (N, n) = [x_1; ...; x_N] and tube (c, r).
 
-        One call of the compiled :func:`stt_drake.kernels.funnel_control` (unless the numpy
-        path is selected, see :mod:`stt_drake.backend`); non-finite inputs go on to the
+        One call of the compiled :func:`stt_drake.core._kernels.funnel_control` (unless the numpy
+        path is selected, see :mod:`stt_drake.core.backend`); non-finite inputs go on to the
         reference path below, which names them in its ValueError.
         """
         kernels = backend.kernels()

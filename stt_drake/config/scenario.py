@@ -16,10 +16,10 @@ import yaml
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.systems.analysis import SimulatorConfig
 
-from stt_drake.belief import ObstacleBelief
-from stt_drake.motion import ConstantVelocity, Motion, Oscillation, SigmaSchedule, Waypoints
-from stt_drake.probability import avoid_probability
-from stt_drake.tube import default_nu, minimum_nu
+from stt_drake.core.belief import ObstacleBelief
+from stt_drake.core.motion import ConstantVelocity, Motion, Oscillation, SigmaSchedule, Waypoints
+from stt_drake.core.probability import avoid_probability
+from stt_drake.core.tube import default_nu, minimum_nu
 
 
 class ScenarioError(ValueError):
@@ -73,7 +73,7 @@ class TubeConfig:
     ν = 2 ln(n_o + 1)/r_min, which keeps r ≥ r_min/2. `update_rate_hz` = 0 integrates the
     centre in continuous time; > 0 runs the fixed-rate (real-time) discrete update.
     `max_center_speed` (m/s) bounds |ċ| always, and is the speed of a recovery (0 derives
-    it from what the plant can follow, see :func:`stt_drake.feasibility.following_speed`)."""
+    it from what the plant can follow, see :func:`stt_drake.build.feasibility.following_speed`)."""
 
     r_min: float = 0.1
     r_max: float = 0.3
@@ -260,7 +260,7 @@ def obstacle_belief(obstacles: list[Obstacle], dimension: int, t: float) -> Obst
 
 def obstacle_rate_bounds(obstacles: list[Obstacle]) -> tuple[np.ndarray, np.ndarray]:
     """Per obstacle, sup ‖μ̇_j‖ and sup |σ̇_j| (m/s) from its motion model and σ schedule,
-    steps excluded (a step is a belief discontinuity, see :mod:`stt_drake.motion`)."""
+    steps excluded (a step is a belief discontinuity, see :mod:`stt_drake.core.motion`)."""
     mean_speed = np.array([o.motion.speed_bound() for o in obstacles], dtype=float)
     sigma_rate = np.array(
         [0.0 if o.sigma_schedule is None else o.sigma_schedule.rate_bound() for o in obstacles],
@@ -454,7 +454,7 @@ def _require_range(value: list[float], path: str, low: float, high: float) -> No
 
 def _require_step_times(times: list[float], path: str) -> None:
     """Times of a piecewise-linear model: finite, non-decreasing, each at most twice (a
-    repeated time is a step, see :mod:`stt_drake.motion`)."""
+    repeated time is a step, see :mod:`stt_drake.core.motion`)."""
     _require(all(math.isfinite(t) for t in times), path, "must be finite", times)
     steps = np.diff(np.asarray(times, dtype=float))
     _require(
@@ -612,9 +612,9 @@ def _validate_franka(scenario: Scenario) -> None:
     all on one parse of the arm model."""
     # Lazy: loading the arm model needs pydrake.multibody, which other plants do not;
     # builders imports this module and holds the one scenario → law construction.
-    from stt_drake.builders import make_arm_law, make_tube_law
-    from stt_drake.manipulator import ArmLimits
-    from stt_drake.systems.franka import FR3_JOINTS, FR3_LINKS, ArmKinematics
+    from stt_drake.build.diagram import make_arm_law, make_tube_law
+    from stt_drake.core.arm import ArmLimits
+    from stt_drake.systems.plants.franka import FR3_JOINTS, FR3_LINKS, ArmKinematics
 
     plant, path = scenario.plant, "scenario.plant"
     _require_vector(plant.initial_configuration, FR3_JOINTS, f"{path}.initial_configuration")
@@ -679,7 +679,7 @@ def _validate_funnel_starts(scenario: Scenario) -> None:
     if PLANT_STAGES[type(scenario.plant)] < 2:
         return
     # Lazy: builders imports this module; it holds the one scenario → law construction.
-    from stt_drake.builders import make_funnel_controller, make_tube_law
+    from stt_drake.build.diagram import make_funnel_controller, make_tube_law
 
     start = np.asarray(scenario.start, dtype=float)
     radius = make_tube_law(scenario).evaluate(start, scenario.belief_at(0.0)).radius
@@ -806,7 +806,7 @@ def validate(scenario: Scenario) -> None:
     else:
         _validate_funnel_starts(scenario)
     # Lazy: feasibility builds on this module's schema (speeds, periods, warnings).
-    from stt_drake.feasibility import validate_real_time
+    from stt_drake.build.feasibility import validate_real_time
 
     validate_real_time(scenario)
 

@@ -22,7 +22,7 @@ EXIT_SUCCESS, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
 #: Modules that add a subcommand (each defines ``add_parser(commands)``).
 SUBCOMMAND_MODULES: tuple[str, ...] = (
     "stt_drake.campaign",
-    "stt_drake.diagram_command",
+    "stt_drake.cli.diagram",
     "stt_drake.bench",
 )
 
@@ -70,8 +70,8 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from stt_drake.config import ScenarioError, load_scenario
     from stt_drake.run import simulate, summary, write_outputs
-    from stt_drake.scenario import ScenarioError, load_scenario
 
     try:
         scenario = load_scenario(args.scenario, seed=args.seed)

@@ -1,6 +1,6 @@
 """Which implementation the hot path uses: the compiled kernels or the numpy reference.
 
-:mod:`stt_drake.kernels` (numba) is loaded on first use, so importing :mod:`stt_drake` stays
+:mod:`stt_drake.core._kernels` (numba) is loaded on first use, so importing :mod:`stt_drake` stays
 fast and never compiles anything. ``STT_DRAKE_PURE_NUMPY=1`` in the environment selects the
 pure numpy/scipy reference path for the whole process; tests switch per block with
 :func:`pure_numpy`.
@@ -32,7 +32,7 @@ def kernels() -> ModuleType | None:
     module = _state["module"]
     if module is None:
         try:
-            from stt_drake import kernels as module
+            from stt_drake.core import _kernels as module
         except ImportError as error:  # pragma: no cover - numba is a pinned dependency
             warnings.warn(
                 f"stt_drake: compiled kernels unavailable ({error}); using numpy",

@@ -13,7 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from stt_drake.cli import DEFAULT_SCENARIO, EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS
+from stt_drake.cli.main import DEFAULT_SCENARIO, EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS
 
 
 def write_diagram_pictures(dot_text: str, out_dir: Path, formats: tuple[str, ...]) -> list[Path]:
@@ -40,8 +40,8 @@ def write_diagram_pictures(dot_text: str, out_dir: Path, formats: tuple[str, ...
 
 
 def _diagram(args: argparse.Namespace) -> int:
-    from stt_drake.builders import build_diagram
-    from stt_drake.scenario import ScenarioError, load_scenario
+    from stt_drake.build.diagram import build_diagram
+    from stt_drake.config import ScenarioError, load_scenario
 
     try:
         scenario = load_scenario(args.scenario)

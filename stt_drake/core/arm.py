@@ -1,13 +1,13 @@
 """The STT controller of a torque-controlled arm (case study 3), and its post-run checks.
 
-Pure numpy: the Drake systems in :mod:`stt_drake.systems.franka` feed it measured signals and
+Pure numpy: the Drake systems in :mod:`stt_drake.systems.plants.franka` feed it measured signals and
 the kinematic Jacobian. The output space is the end-effector (TCP) position y ∈ R³.
 
 The arm q̈ = M(q)⁻¹(τ − C(q, q̇)q̇ − g(q) − D q̇ + τ_ext) is not in the pure-feedback form
 of eq. (sysdyn) in the task-space coordinates, so the law runs in two spaces:
 
 * **Stage 1** (task space, n = 3, the ball funnel of Sec. 5, reused from
-  :class:`stt_drake.control.FunnelController`): v_ref = −κ₁ ρ₁ (y − c).
+  :class:`stt_drake.core.control.FunnelController`): v_ref = −κ₁ ρ₁ (y − c).
 * **Mapping** (kinematics only): q̇_ref = J⁺_λ v_ref + N z(q), with the damped least-squares
   inverse J⁺_λ = V diag(s/(s² + λ²)) Uᵀ of the translational Jacobian J = U diag(s) Vᵀ and the
   exact null-space projector N = I − V Vᵀ (J N = 0, so the posture term z never moves the
@@ -16,7 +16,7 @@ of eq. (sysdyn) in the task-space coordinates, so the law runs in two spaces:
   system has the positive-definite input gain of Assumption 2, and the joint-velocity error
   enters as a disturbance bounded by the stage-2 funnel.
 * **Stage 2** (joint space, 7 box funnels on q̇ − q̇_ref, reused from
-  :func:`stt_drake.control.box_funnel_stage`): τ = −κ₂ ξ₂ ρ₂.
+  :func:`stt_drake.core.control.box_funnel_stage`): τ = −κ₂ ξ₂ ρ₂.
 
 No mass matrix, Coriolis, gravity or friction term: the law never reads a dynamic parameter.
 """
@@ -30,8 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from stt_drake.control import BoxFunnel, FunnelController, box_funnel_stage
-from stt_drake.invariants import HOLDS_TOLERANCE
+from stt_drake.core.control import BoxFunnel, FunnelController, box_funnel_stage
+from stt_drake.core.invariants import HOLDS_TOLERANCE
 
 
 @dataclass(frozen=True)

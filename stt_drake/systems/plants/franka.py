@@ -9,7 +9,7 @@ from ``models/franka_fr3.urdf``. Around it:
   limits. Compensation can be switched off: the STT controller does not rely on it.
 * :class:`ArmMeasurement` — the measured TCP position y (the tube's output space) and the
   stacked controller input [y, q, q̇].
-* :class:`ArmSTTController` — the funnel law of :mod:`stt_drake.manipulator`; the only model
+* :class:`ArmSTTController` — the funnel law of :mod:`stt_drake.core.arm`; the only model
   it holds is the arm's kinematics (:class:`ArmKinematics`, for the Jacobian).
 * :class:`ExternalJerks` — short impulsive wrenches on arm links at given times.
 * :class:`Fr3Drawing` — the arm's geometry in Meshcat, posed from logged joints (replays).
@@ -41,10 +41,10 @@ from pydrake.systems.framework import (
     ValueProducer,
 )
 
-from stt_drake.manipulator import ArmFunnelLaw
+from stt_drake.core.arm import ArmFunnelLaw
 
 #: The FR3 description written for this project (see the header of the file for sources).
-FR3_MODEL = Path(__file__).resolve().parents[2] / "models" / "franka_fr3.urdf"
+FR3_MODEL = Path(__file__).resolve().parents[3] / "models" / "franka_fr3.urdf"
 #: libfranka's start ("ready") configuration, rad.
 FR3_HOME = np.array([0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4])
 #: Frame whose origin is the end-effector point y: the Franka Hand's TCP.
