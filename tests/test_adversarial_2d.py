@@ -14,7 +14,7 @@ from pathlib import Path
 import adversarial
 import pytest
 
-from stt_drake.config import load_scenario
+from stt_drake.build import load_scenario
 from stt_drake.run import RunResult, simulate
 
 CORPUS = adversarial.corpus("omni_")

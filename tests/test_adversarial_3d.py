@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from adversarial import check_file, corpus, expectation, scenario_data
 
-from stt_drake.config import load_scenario
+from stt_drake.build import load_scenario
 from stt_drake.run import RunResult, simulate
 
 CORPUS = corpus("uav_")

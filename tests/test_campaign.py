@@ -21,6 +21,7 @@ import pytest
 from distributed import LocalCluster
 from scipy.stats import binom, binomtest, ncx2
 
+from stt_drake.build import load_scenario
 from stt_drake.campaign import (
     CLOSED_LOOP_FILE,
     CampaignSpec,
@@ -32,7 +33,6 @@ from stt_drake.campaign import (
     sample_xi,
 )
 from stt_drake.cli.main import main
-from stt_drake.config import load_scenario
 from stt_drake.run import simulate
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -346,12 +346,39 @@ def test_killed_campaign_resumes_to_the_uninterrupted_summary(randomised, tmp_pa
     assert _without_wall_time(_summary(out)) == _without_wall_time(_summary(reference))
 
 
-def test_draws_that_break_the_assumptions_are_rejected_not_failed(tmp_path):
+def test_a_count_range_field_is_randomised(tmp_path):
+    """`count_range` draws the number of obstacles per run: a randomisation campaign takes
+    it as a random field. 2 s is too short to reach the target (t_c ≈ 3.9 s)."""
+    text = RANDOM.read_text().replace("count: 2", "count_range: [1, 3]")
+    scenario = tmp_path / "count_range.yaml"
+    scenario.write_text(text.replace("duration: 5.0", "duration: 2.0"))
+    out = tmp_path / "out"
+    args = ["campaign", str(scenario), "--kind", "randomisation", "--runs", "3"]
+    code = main([*args, "--out", str(out), "--workers", "1", "--no-progress", "--no-figures"])
+    assert code == 1
+    summary = _summary(out)
+    assert summary["kind"] == "randomisation" and summary["simulated_runs"] == 3
+    assert summary["rejected_draws"] == 0 and summary["error_runs"] == 0
+    assert summary["failed_runs"] == 3
+    records = _records(out)
+    assert [r["run"] for r in records] == [0, 1, 2]
+    assert not any(r["reached"] for r in records)
+    assert {r["obstacles"] for r in records} == {1, 2, 3}  # a count per draw, in [1, 3]
+
+
+@pytest.mark.parametrize(
+    ("field", "where"),
+    [
+        ("count: 1", "random_obstacles.count"),
+        ("count_range: [1, 2]", "random_obstacles.count_range"),
+    ],
+)
+def test_draws_that_break_the_assumptions_are_rejected_not_failed(field, where, tmp_path):
     """Obstacles drawn on top of the start can never meet the initial condition."""
     text = RANDOM.read_text()
     text = text.replace("region_min: [0.8, 0.8]", "region_min: [0.4, 0.4]")
     text = text.replace("region_max: [2.7, 2.7]", "region_max: [0.6, 0.6]")
-    text = text.replace("count: 2", "count: 1")
+    text = text.replace("count: 2", field)
     scenario = tmp_path / "crowded.yaml"
     scenario.write_text(text)
     out = tmp_path / "out"
@@ -360,8 +387,11 @@ def test_draws_that_break_the_assumptions_are_rejected_not_failed(tmp_path):
     assert code == 1
     summary = _summary(out)
     assert summary["rejected_draws"] == 2 and summary["simulated_runs"] == 0
-    assert summary["failed_runs"] == 0 and summary["holds"] is False
-    assert all("could not place" in r["reason"] for r in _records(out))
+    assert summary["failed_runs"] == 0 and summary["error_runs"] == 0
+    assert summary["holds"] is False
+    records = _records(out)
+    assert [r["status"] for r in records] == ["rejected", "rejected"]
+    assert all(f"{where}: could not place" in r["reason"] for r in records)
 
 
 # --------------------------------------------------------------------------- bad input

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from scipy.stats import ncx2
 
-from stt_drake.build import feasibility
-from stt_drake.config import ScenarioError, parse_scenario
+from stt_drake.build import feasibility, parse_scenario
+from stt_drake.config import ScenarioError
 
 RHO_MAX = 2.0 * math.atanh(1.0 - 1e-9)  # ρ₁ at the controller's saturated error
 

@@ -20,8 +20,8 @@ from test_closed_loop import test_tube_stays_in_target_after_reach_time as check
 from test_franka_model import EFFORT, POSITION_LOWER, POSITION_UPPER, VELOCITY, dh_frames
 from test_replay import METRICS_KEYS, animation, check_self_contained, rotate
 
+from stt_drake.build import load_scenario, parse_scenario
 from stt_drake.cli.main import main
-from stt_drake.config import load_scenario, parse_scenario
 from stt_drake.core.invariants import HOLDS_TOLERANCE
 from stt_drake.plotting import level_set_radius
 from stt_drake.run import simulate

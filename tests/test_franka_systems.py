@@ -16,7 +16,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from test_franka_model import EFFORT, POSITION_LOWER, POSITION_UPPER, VELOCITY, dh_frames
 
-from stt_drake.config import ScenarioError, parse_scenario, task_targets
+from stt_drake.build import parse_scenario
+from stt_drake.config import ScenarioError
 from stt_drake.core.arm import (
     ArmFunnelLaw,
     ArmLimits,
@@ -340,7 +341,7 @@ def _case1_text(**replacements: str) -> str:
 
 def test_task_targets_are_the_waypoints_then_the_target():
     scenario = parse_scenario(_case1_text())
-    targets = np.array(task_targets(scenario))
+    targets = np.array(scenario.task_targets())
     np.testing.assert_allclose(targets[:3], scenario.plant.waypoints)
     np.testing.assert_allclose(targets[3], scenario.target)
 

@@ -421,8 +421,8 @@ def test_closed_loop_agrees_between_paths():
 
     from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 
+    from stt_drake.build import load_scenario
     from stt_drake.build.diagram import build_diagram
-    from stt_drake.config import load_scenario
     from stt_drake.core.invariants import InvariantTracker
 
     scenario = load_scenario(Path(__file__).parent.parent / "diagrams/omni_hardware_case1.yaml")

@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stt_drake.config import Obstacle, load_scenario
+from stt_drake.build import load_scenario
+from stt_drake.config import Obstacle
 from stt_drake.core.invariants import HOLDS_TOLERANCE, reach_story, tube_reach_time
 from stt_drake.core.motion import ConstantVelocity, Oscillation, Waypoints
 from stt_drake.story import (

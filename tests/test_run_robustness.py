@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 
 from stt_drake import run as run_module
+from stt_drake.build import load_scenario
 from stt_drake.cli.main import main
-from stt_drake.config import ScenarioError, load_scenario, validate
+from stt_drake.config import ScenarioError, validate
 from stt_drake.run import simulate
 from stt_drake.systems.monitor import (
     DEFAULT_MAX_STEPS_PER_SECOND,

@@ -18,12 +18,9 @@ import numpy as np
 import pytest
 import yaml
 
-from stt_drake.config import (
-    ScenarioError,
-    load_scenario,
-    obstacle_belief,
-    parse_scenario,
-)
+from stt_drake.build import load_scenario, parse_scenario
+from stt_drake.config import ScenarioError
+from stt_drake.core.belief import obstacle_belief
 from stt_drake.core.motion import Oscillation
 from stt_drake.core.probability import avoid_probability
 

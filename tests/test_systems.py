@@ -20,8 +20,9 @@ from pydrake.systems.framework import DiagramBuilder, EventStatus
 from pydrake.systems.primitives import ConstantVectorSource, Integrator
 from scipy.stats import ncx2
 
+from stt_drake.build import parse_scenario
 from stt_drake.build.diagram import build_diagram
-from stt_drake.config import Obstacle, parse_scenario
+from stt_drake.config import Obstacle
 from stt_drake.core.belief import ObstacleBelief, belief_size
 from stt_drake.core.control import BoxFunnel, FunnelController
 from stt_drake.core.invariants import INVARIANT_NAMES, InvariantTracker, evaluate_invariants

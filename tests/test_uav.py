@@ -19,8 +19,9 @@ from test_closed_loop import (
 )
 from test_closed_loop import test_tube_stays_in_target_after_reach_time as check_stay
 
+from stt_drake.build import load_scenario, parse_scenario
 from stt_drake.config import Quadrotor as QuadrotorConfig
-from stt_drake.config import ScenarioError, load_scenario, parse_scenario
+from stt_drake.config import ScenarioError
 from stt_drake.core.belief import ObstacleBelief
 from stt_drake.core.invariants import INVARIANT_NAMES
 from stt_drake.core.tube import null_space_direction

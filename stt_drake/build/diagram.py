@@ -12,23 +12,21 @@ from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, OutputPort
 from pydrake.systems.primitives import LogVectorOutput, MatrixGain, Sine, VectorLogSink
 
-from stt_drake.core.control import BoxFunnel, FunnelController
-from stt_drake.build.feasibility import center_speed, rate_bounds
-from stt_drake.core.arm import (
-    ArmFunnelLaw,
-    ArmLimits,
-    JerkWindow,
-    JointSpaceMapping,
-    arm_metrics,
-)
+from stt_drake.build.feasibility import rate_bounds
+from stt_drake.build.laws import make_arm_law, make_funnel_controller, make_tube_law
+from stt_drake.build.stt import AddStt
 from stt_drake.config import FrankaArm as FrankaArmConfig
 from stt_drake.config import OmniRobot as OmniRobotConfig
 from stt_drake.config import Quadrotor as QuadrotorConfig
-from stt_drake.config import Scenario, initial_output, task_targets
+from stt_drake.config import Scenario
+from stt_drake.core.arm import (
+    ArmLimits,
+    JerkWindow,
+    arm_metrics,
+)
 from stt_drake.systems.belief_source import ObstacleBeliefSource
-from stt_drake.systems.controller import STTController
+from stt_drake.systems.monitor import InvariantMonitor
 from stt_drake.systems.plants.franka import (
-    FR3_HOME,
     ArmKinematics,
     ArmMeasurement,
     ArmRobotInterface,
@@ -38,12 +36,10 @@ from stt_drake.systems.plants.franka import (
     add_fr3,
     make_fr3_plant,
 )
-from stt_drake.systems.monitor import InvariantMonitor
 from stt_drake.systems.plants.omni import OmniDriveInterface, OmniRobot
 from stt_drake.systems.plants.quadrotor import Quadrotor
 from stt_drake.systems.sequencer import TargetSequencer
 from stt_drake.systems.tube import SpatiotemporalTube
-from stt_drake.core.tube import TubeLaw, linear_zone_for_step
 
 
 @dataclass
@@ -87,61 +83,26 @@ class SttDiagram:
     plant_report: Callable[[dict[str, np.ndarray]], dict[str, Any]] | None = None
 
 
-def make_tube_law(scenario: Scenario) -> TubeLaw:
-    """The tube law with the scenario's constants (ν and max_center_speed derived when not
-    given, :func:`stt_drake.build.feasibility.center_speed`).
-
-    The attraction gets the linear zone δ = (k1·h)^{3/2} of the longest step h that
-    integrates it — the simulator's max step in continuous time, the update period at a
-    fixed rate — so no step of h overshoots η (see
-    :func:`stt_drake.core.tube.signed_cube_root_attraction`).
-    """
-    config = scenario.tube
-    rate = config.update_rate_hz
-    step = 1.0 / rate if rate > 0.0 else scenario.simulator.max_step_size
-    return TubeLaw(
-        target=np.asarray(scenario.target, dtype=float),
-        k1=config.k1,
-        k2=config.k2,
-        k3=config.k3,
-        r_min=config.r_min,
-        r_max=config.r_max,
-        nu=scenario.nu,
-        linear_zone=linear_zone_for_step(config.k1, step),
-        max_center_speed=center_speed(scenario),
-    )
-
-
-def make_funnel_controller(scenario: Scenario) -> FunnelController:
-    """The funnel controller with the scenario's gains and box funnels."""
-    config = scenario.controller
-    return FunnelController(
-        kappa=list(config.kappa),
-        funnels=[
-            BoxFunnel(start=np.array(f.start), end=np.array(f.end), rate=np.array(f.rate))
-            for f in config.funnels
-        ],
-    )
-
-
 def add_omni_robot(builder: DiagramBuilder, scenario: Scenario) -> PlantHandles:
     """Omni base + its nominal-kinematics drive interface + a sinusoidal disturbance."""
     config: OmniRobotConfig = scenario.plant
-    robot = builder.AddSystem(
+    robot = builder.AddNamedSystem(
+        "omni_robot",
         OmniRobot(
             config.wheel_radius,
             config.base_radius,
-            initial_output(scenario),
+            scenario.initial_output(),
             config.initial_heading,
-        )
+        ),
     )
-    drive = builder.AddSystem(
+    drive = builder.AddNamedSystem(
+        "omni_drive_interface",
         OmniDriveInterface(
             config.nominal_wheel_radius,
             config.nominal_base_radius,
             config.heading_gain,
             config.initial_heading,
-        )
+        ),
     )
     disturbance = add_sinusoidal_disturbance(
         builder,
@@ -203,14 +164,15 @@ def add_quadrotor(builder: DiagramBuilder, scenario: Scenario) -> PlantHandles:
     from the scenario seed, logged as "wind"); the STT controller's force goes straight to
     `control`."""
     config: QuadrotorConfig = scenario.plant
-    uav = builder.AddSystem(
+    uav = builder.AddNamedSystem(
+        "quadrotor",
         Quadrotor(
             config.mass,
             config.drag,
             config.gravity,
-            initial_output(scenario),
+            scenario.initial_output(),
             np.asarray(config.initial_velocity, dtype=float),
-        )
+        ),
     )
     rng = np.random.default_rng(scenario.seed)
     phases = rng.uniform(0.0, 2.0 * np.pi, size=(3, len(config.wind_frequencies_hz)))
@@ -233,25 +195,6 @@ SEQUENCER_PERIOD = 0.01
 JERK_SETTLE_TIME = 1.0
 
 
-def make_arm_law(scenario: Scenario, limits: ArmLimits | None = None) -> ArmFunnelLaw:
-    """The arm's two-space funnel law: the scenario's κ and joint-velocity funnel, and the
-    task → joint mapping (posture: the FR3 home configuration; limits: the model's)."""
-    config: FrankaArmConfig = scenario.plant
-    limits = limits if limits is not None else ArmLimits.of(make_fr3_plant())
-    return ArmFunnelLaw(
-        controller=make_funnel_controller(scenario),
-        mapping=JointSpaceMapping(
-            damping=config.jacobian_damping,
-            posture=FR3_HOME,
-            posture_gain=config.posture_gain,
-            position_lower=limits.position_lower,
-            position_upper=limits.position_upper,
-            limit_margin=config.limit_margin,
-            limit_gain=config.limit_gain,
-        ),
-    )
-
-
 def add_franka(builder: DiagramBuilder, scenario: Scenario) -> PlantHandles:
     """FR3 arm: continuous-time MultibodyPlant + SceneGraph (torque actuation), the robot's
     torque interface (gravity compensation from its own model, saturation), the TCP
@@ -263,10 +206,14 @@ def add_franka(builder: DiagramBuilder, scenario: Scenario) -> PlantHandles:
     plant.Finalize()
     plant.SetDefaultPositions(np.asarray(config.initial_configuration, dtype=float))
     limits = ArmLimits.of(plant)
-    interface = builder.AddSystem(ArmRobotInterface(make_fr3_plant(), config.gravity_compensation))
-    measurement = builder.AddSystem(ArmMeasurement(plant))
+    interface = builder.AddNamedSystem(
+        "fr3_robot_interface", ArmRobotInterface(make_fr3_plant(), config.gravity_compensation)
+    )
+    measurement = builder.AddNamedSystem("fr3_measurement", ArmMeasurement(plant))
     law = make_arm_law(scenario, limits)
-    controller = builder.AddSystem(ArmSTTController(law, ArmKinematics()))
+    controller = builder.AddNamedSystem(
+        "arm_stt_controller", ArmSTTController(law, ArmKinematics())
+    )
     state = plant.get_state_output_port()
     builder.Connect(state, interface.GetInputPort("state"))
     builder.Connect(state, measurement.GetInputPort("state"))
@@ -290,16 +237,19 @@ def add_franka(builder: DiagramBuilder, scenario: Scenario) -> PlantHandles:
         for jerk in config.jerks
     ]
     if jerks:
-        pushes = builder.AddSystem(ExternalJerks(jerks))
+        pushes = builder.AddNamedSystem("external_jerks", ExternalJerks(jerks))
         builder.Connect(
             pushes.GetOutputPort("spatial_forces"), plant.get_applied_spatial_force_input_port()
         )
         logged["external_force"] = pushes.GetOutputPort("force")
-    targets = task_targets(scenario)
+    targets = scenario.task_targets()
     sequencer = None
     if len(targets) > 1:
-        sequencer = builder.AddSystem(
-            TargetSequencer(targets, scenario.target_set_radius, config.hold_time, SEQUENCER_PERIOD)
+        sequencer = builder.AddNamedSystem(
+            "target_sequencer",
+            TargetSequencer(
+                targets, scenario.target_set_radius, config.hold_time, SEQUENCER_PERIOD
+            ),
         )
     return PlantHandles(
         plant=plant,
@@ -335,41 +285,31 @@ PLANT_BUILDERS: dict[type, Callable[[DiagramBuilder, Scenario], PlantHandles]] =
 
 
 def build_diagram(scenario: Scenario) -> SttDiagram:
-    """Wire belief source → tube → controller → plant, the monitor, and loggers on the
-    plant output, tube, belief, diagnostics, control and margins (DESIGN.md diagram)."""
+    """The scenario's plant (from :data:`PLANT_BUILDERS`) and its STT loop (:func:`AddStt`)
+    connected, and loggers on the plant output, tube, belief, diagnostics, control and
+    margins (DESIGN.md diagram)."""
     builder = DiagramBuilder()
-    n, count = scenario.dimension, len(scenario.obstacles)
-    belief_source = builder.AddSystem(ObstacleBeliefSource(scenario.obstacles, n))
     plant = PLANT_BUILDERS[type(scenario.plant)](builder, scenario)
     rate = scenario.tube.update_rate_hz
-    tube = builder.AddSystem(
-        SpatiotemporalTube(
-            make_tube_law(scenario),
-            np.asarray(scenario.start, dtype=float),
-            count,
-            update_period=1.0 / rate if rate > 0.0 else None,
-            target_input=plant.sequencer is not None,
-            rate_bounds=rate_bounds(scenario),
-        )
+    stt = AddStt(
+        builder,
+        make_tube_law(scenario),
+        plant.controller or make_funnel_controller(scenario),
+        scenario.start,
+        obstacles=scenario.obstacles,
+        update_period=1.0 / rate if rate > 0.0 else None,
+        rate_bounds=rate_bounds(scenario),
+        target_input=plant.sequencer is not None,
     )
-    controller = plant.controller
-    if controller is None:
-        controller = builder.AddSystem(STTController(make_funnel_controller(scenario), n))
-    monitor = builder.AddSystem(InvariantMonitor(n, count, scenario.tube.r_min))
-
-    belief = belief_source.GetOutputPort("obstacle_belief")
-    builder.Connect(belief, tube.GetInputPort("obstacle_belief"))
-    builder.Connect(tube.GetOutputPort("tube"), controller.GetInputPort("tube"))
-    builder.Connect(plant.plant_state, controller.GetInputPort("plant_state"))
-    builder.Connect(controller.GetOutputPort("control"), plant.control_input)
-    builder.Connect(tube.GetOutputPort("tube"), monitor.GetInputPort("tube"))
-    builder.Connect(belief, monitor.GetInputPort("obstacle_belief"))
-    builder.Connect(plant.output, monitor.GetInputPort("output"))
+    builder.Connect(plant.plant_state, stt.plant_state)
+    builder.Connect(stt.control, plant.control_input)
+    builder.Connect(plant.output, stt.output)
+    tube, controller, monitor = stt.tube_system, stt.controller, stt.monitor
 
     logged = {
         "output": plant.output,
-        "tube": tube.GetOutputPort("tube"),
-        "belief": belief,
+        "tube": stt.tube,
+        "belief": stt.belief,
         "diagnostics": tube.GetOutputPort("diagnostics"),
         "recovery": tube.GetOutputPort("recovery"),
         "control": controller.GetOutputPort("control"),
@@ -379,7 +319,7 @@ def build_diagram(scenario: Scenario) -> SttDiagram:
     }
     extra = dict(plant.logged)
     if plant.sequencer is not None:
-        builder.Connect(tube.GetOutputPort("tube"), plant.sequencer.GetInputPort("tube"))
+        builder.Connect(stt.tube, plant.sequencer.GetInputPort("tube"))
         builder.Connect(plant.sequencer.GetOutputPort("target"), tube.GetInputPort("target"))
         extra["task_target"] = plant.sequencer.GetOutputPort("target")
     logged.update(extra)
@@ -391,7 +331,7 @@ def build_diagram(scenario: Scenario) -> SttDiagram:
     diagram.set_name(scenario.name)
     return SttDiagram(
         diagram,
-        belief_source,
+        stt.belief_source,
         tube,
         controller,
         monitor,

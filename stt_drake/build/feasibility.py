@@ -41,17 +41,18 @@ import math
 import numpy as np
 from scipy import stats
 
-from stt_drake.core.control import ERROR_SATURATION, transformed_error
-from stt_drake.core.probability import PRUNE_HEADROOM_NU, period_avoid_probability
 from stt_drake.config import (
     FrankaArm,
     OmniRobot,
     Quadrotor,
     Scenario,
     ScenarioError,
-    obstacle_rate_bounds,
 )
+from stt_drake.core.belief import obstacle_rate_bounds
+from stt_drake.core.control import ERROR_SATURATION, transformed_error
+from stt_drake.core.probability import PRUNE_HEADROOM_NU, period_avoid_probability
 from stt_drake.core.tube import BeliefRateBounds
+from stt_drake.systems.plants.franka import fr3_lever_arm_bounds
 
 #: ρ₁ at the saturated error: the largest pull-back gain of stage 1 (≈ 21.4).
 RHO_MAX = float(transformed_error(np.array(ERROR_SATURATION)))
@@ -81,8 +82,6 @@ def following_speed(scenario: Scenario) -> float:
     if isinstance(plant, Quadrotor):
         return stage_one - float(np.linalg.norm(band))
     if isinstance(plant, FrankaArm):
-        from stt_drake.systems.plants.franka import fr3_lever_arm_bounds
-
         return stage_one - float(fr3_lever_arm_bounds() @ band)
     raise TypeError(f"no following speed for plant {type(plant).__name__}")
 

@@ -1,4 +1,4 @@
-"""`stt-drake diagram SCENARIO`: the scenario's Drake Diagram as a Graphviz picture.
+"""`stt-drake diagram [SCENARIO]`: the scenario's Drake Diagram as a Graphviz picture.
 
 Writes ``diagram.dot`` (Drake's ``GetGraphvizString``) and renders it to SVG and PNG with
 Graphviz's ``dot`` program (Debian package ``graphviz``), so a user sees how the systems
@@ -10,10 +10,9 @@ from __future__ import annotations
 import argparse
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
-from stt_drake.cli.main import DEFAULT_SCENARIO, EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_SUCCESS
+from stt_drake.cli.main import CommandError, add_scenario_arguments, load_scenario_arguments
 
 
 def write_diagram_pictures(dot_text: str, out_dir: Path, formats: tuple[str, ...]) -> list[Path]:
@@ -39,26 +38,19 @@ def write_diagram_pictures(dot_text: str, out_dir: Path, formats: tuple[str, ...
     return written
 
 
-def _diagram(args: argparse.Namespace) -> int:
+def _diagram(args: argparse.Namespace) -> bool:
     from stt_drake.build.diagram import build_diagram
-    from stt_drake.config import ScenarioError, load_scenario
 
-    try:
-        scenario = load_scenario(args.scenario)
-    except ScenarioError as error:
-        print(f"stt-drake: bad scenario {args.scenario}: {error}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    scenario, out_dir = load_scenario_arguments(args)
     diagram = build_diagram(scenario).diagram
-    out_dir = args.out if args.out is not None else Path("results") / scenario.name
     try:
         written = write_diagram_pictures(
             diagram.GetGraphvizString(max_depth=args.depth), out_dir, tuple(args.format)
         )
     except FileNotFoundError as error:
-        print(f"stt-drake: {error}", file=sys.stderr)
-        return EXIT_FAILURE
+        raise CommandError(f"stt-drake: {error}") from error
     print(f"wrote {', '.join(str(p) for p in written)}")
-    return EXIT_SUCCESS
+    return True
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -68,10 +60,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="draw the scenario's Drake Diagram (Graphviz SVG/PNG)",
         description="Writes diagram.dot, diagram.svg and diagram.png into the out folder.",
     )
-    parser.add_argument("scenario", nargs="?", type=Path, default=DEFAULT_SCENARIO)
-    parser.add_argument(
-        "--out", type=Path, default=None, help="output folder (default: results/<scenario name>/)"
-    )
+    add_scenario_arguments(parser)
     parser.add_argument("--format", nargs="+", choices=["svg", "png"], default=["svg", "png"])
     parser.add_argument(
         "--depth",

@@ -1,9 +1,11 @@
-"""The `stt-drake` command.
+"""The `stt-drake` command: its argument parser, the dispatch to a subcommand and exit codes.
 
-Each subcommand is a module with ``add_parser(commands)`` that declares its arguments and
-sets ``handler`` (a function of the parsed arguments returning the exit code); `run` lives
-here. Exit codes are shared: 0 success, 1 a guarantee failed, the goal was missed or the run
-stopped early (its metrics say why), 2 bad input.
+Each subcommand is a module of this package (:data:`SUBCOMMAND_MODULES`) with
+``add_parser(commands)``, which declares its arguments and sets ``handler``: a function of
+the parsed arguments that returns whether the run succeeded, or raises
+:class:`CommandError` (:class:`BadInputError` for bad input). :func:`main` is the one place
+that turns those into messages and exit codes: 0 success, 1 a guarantee failed, the goal
+was missed or the run stopped early (its metrics say why), 2 bad input.
 """
 
 from __future__ import annotations
@@ -13,18 +15,69 @@ import importlib
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-#: The scenario `stt-drake run` uses when none is given.
+if TYPE_CHECKING:
+    from stt_drake.config import Scenario
+
+#: The scenario `stt-drake run` and `stt-drake diagram` use when none is given.
 DEFAULT_SCENARIO = Path("diagrams/omni_hardware_case1.yaml")
 
 EXIT_SUCCESS, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
 
-#: Modules that add a subcommand (each defines ``add_parser(commands)``).
+#: Modules that add a subcommand (each defines ``add_parser(commands)``), in help order.
 SUBCOMMAND_MODULES: tuple[str, ...] = (
-    "stt_drake.campaign",
+    "stt_drake.cli.run",
+    "stt_drake.cli.campaign",
     "stt_drake.cli.diagram",
-    "stt_drake.bench",
+    "stt_drake.cli.bench",
 )
+
+
+class CommandError(Exception):
+    """A subcommand could not finish: :func:`main` prints the message to stderr (no
+    traceback) and exits with :attr:`exit_code`."""
+
+    exit_code = EXIT_FAILURE
+
+
+class BadInputError(CommandError):
+    """The command line, or a file it names, is invalid (exit code 2)."""
+
+    exit_code = EXIT_BAD_INPUT
+
+
+def add_scenario_arguments(
+    parser: argparse.ArgumentParser, scenario_help: str | None = None
+) -> None:
+    """Declare the optional positional scenario (default :data:`DEFAULT_SCENARIO`) and
+    ``--out``; read them back with :func:`load_scenario_arguments`."""
+    parser.add_argument(
+        "scenario", nargs="?", type=Path, default=DEFAULT_SCENARIO, help=scenario_help
+    )
+    parser.add_argument(
+        "--out", type=Path, default=None, help="output folder (default: results/<scenario name>/)"
+    )
+
+
+def load_scenario_arguments(
+    args: argparse.Namespace, seed: int | None = None
+) -> tuple[Scenario, Path]:
+    """The scenario named by ``args.scenario`` (loaded with `seed`) and the output folder
+    (``args.out``, default results/<scenario name>/).
+
+    Raises:
+        BadInputError: if the scenario cannot be read or breaks a rule.
+    """
+    from stt_drake.build import load_scenario
+    from stt_drake.config import ScenarioError
+
+    try:
+        scenario = load_scenario(args.scenario, seed=seed)
+    except ScenarioError as error:
+        raise BadInputError(f"stt-drake: bad scenario {args.scenario}: {error}") from error
+    out_dir = args.out if args.out is not None else Path("results") / scenario.name
+    return scenario, out_dir
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -33,75 +86,21 @@ def _parser() -> argparse.ArgumentParser:
         description="Spatiotemporal Tube control among uncertain moving obstacles (Drake).",
     )
     commands = parser.add_subparsers(dest="command", required=True)
-    run = commands.add_parser(
-        "run",
-        help="simulate one scenario and check every guarantee",
-        description="Exit code 0: every guarantee held and the target was reached; "
-        "1: a guarantee failed, the target was not reached or the run stopped early "
-        "(integrator failure, step-rate watchdog, --strict); 2: bad input.",
-    )
-    run.add_argument(
-        "scenario",
-        nargs="?",
-        type=Path,
-        default=DEFAULT_SCENARIO,
-        help=f"scenario YAML (default: {DEFAULT_SCENARIO})",
-    )
-    run.add_argument(
-        "--out", type=Path, default=None, help="output folder (default: results/<scenario name>/)"
-    )
-    run.add_argument(
-        "--seed",
-        type=int,
-        default=None,
-        help="override the scenario's seed (also redraws random_obstacles)",
-    )
-    run.add_argument("--strict", action="store_true", help="stop at the first violated guarantee")
-    run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
-    run.add_argument(
-        "--meshcat",
-        action="store_true",
-        help="also write replay.html, a self-contained Meshcat replay of the run",
-    )
-    run.set_defaults(handler=_run)
     for module in SUBCOMMAND_MODULES:
         importlib.import_module(module).add_parser(commands)
     return parser
 
 
-def _run(args: argparse.Namespace) -> int:
-    from stt_drake.config import ScenarioError, load_scenario
-    from stt_drake.run import simulate, summary, write_outputs
-
-    try:
-        scenario = load_scenario(args.scenario, seed=args.seed)
-    except ScenarioError as error:
-        print(f"stt-drake: bad scenario {args.scenario}: {error}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    result = simulate(scenario, strict=True if args.strict else None)
-    out_dir = args.out if args.out is not None else Path("results") / scenario.name
-    written = write_outputs(result, out_dir, figures=not args.no_figures)
-    if args.meshcat and len(result.log["t"]) == 0:
-        print(
-            "stt-drake: no replay: the run stopped before its first logged sample", file=sys.stderr
-        )
-    elif args.meshcat:
-        from stt_drake.replay import body_radius, write_meshcat_replay
-
-        written.append(
-            write_meshcat_replay(
-                result.log, out_dir / "replay.html", body_radius=body_radius(scenario.plant)
-            )
-        )
-    print(summary(result))
-    print(f"  wrote {', '.join(str(p) for p in written)}")
-    return EXIT_SUCCESS if result.success else EXIT_FAILURE
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the `stt-drake` console script."""
+    """Entry point of the `stt-drake` console script: run the subcommand, return its exit
+    code."""
     args = _parser().parse_args(argv)
-    return args.handler(args)
+    try:
+        succeeded = args.handler(args)
+    except CommandError as error:
+        print(error, file=sys.stderr)
+        return error.exit_code
+    return EXIT_SUCCESS if succeeded else EXIT_FAILURE
 
 
 if __name__ == "__main__":

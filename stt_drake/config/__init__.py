@@ -1,3 +1,47 @@
-"""Scenario files: schema, loading, validation, random fields."""
+"""Scenario files: the schema (dataclasses), reading YAML into it, the rules checked
+without building anything, and random obstacle fields. The complete loader, which adds the
+checks that need the built laws, is :func:`stt_drake.build.load_scenario`."""
 
-from stt_drake.config.scenario import *  # noqa: F403 (temporary during the restructure)
+from stt_drake.config.load import read_scenario, read_scenario_text
+from stt_drake.config.random_field import expand_random_obstacles, has_random_field
+from stt_drake.config.schema import (
+    PLANT_DIMENSION,
+    PLANT_FUNNEL_DIMENSION,
+    PLANT_STAGES,
+    ArmJerk,
+    AssumptionError,
+    ControllerConfig,
+    FrankaArm,
+    FunnelConfig,
+    Obstacle,
+    OmniRobot,
+    Quadrotor,
+    RandomObstacles,
+    Scenario,
+    ScenarioError,
+    TubeConfig,
+)
+from stt_drake.config.validate import validate
+
+__all__ = [
+    "PLANT_DIMENSION",
+    "PLANT_FUNNEL_DIMENSION",
+    "PLANT_STAGES",
+    "ArmJerk",
+    "AssumptionError",
+    "ControllerConfig",
+    "FrankaArm",
+    "FunnelConfig",
+    "Obstacle",
+    "OmniRobot",
+    "Quadrotor",
+    "RandomObstacles",
+    "Scenario",
+    "ScenarioError",
+    "TubeConfig",
+    "expand_random_obstacles",
+    "has_random_field",
+    "read_scenario",
+    "read_scenario_text",
+    "validate",
+]

@@ -39,8 +39,6 @@ import numpy as np
 from numba import njit
 from scipy import special
 
-from stt_drake.core.probability import PRUNE_HEADROOM_NU
-
 _JIT = {"cache": True, "error_model": "numpy", "nogil": True}
 
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
@@ -810,6 +808,7 @@ def tube_advance(
     sigma_rate: np.ndarray,
     circulation: np.ndarray,
     constants: np.ndarray,
+    prune_above: float,
     duration: float,
     start_radius: float,
     max_attempts: int,
@@ -820,7 +819,8 @@ def tube_advance(
     towards `center` until it holds and the end radius the segment allows
     (:func:`_end_radius_bound`, from `start_radius`; NaN: the first update) stays ≥ r_min;
     then the radius at both ends of the period. `constants` must skip the
-    quantiles of the law (prune_above = −∞).
+    quantiles of the law (prune_above = −∞); `prune_above` is the law's own (the
+    radius bounds use it).
 
     Returns:
         (c_{k+1}, certified (m,) booleans, accepted sub-steps, r at the start and at the
@@ -899,7 +899,6 @@ def tube_advance(
         must_hold[j] = start_q - epsilon[j] > 0.0
     r_max = constants[2]
     nu = constants[3]
-    prune_above = r_max + PRUNE_HEADROOM_NU / nu
     at_start = _point_quantile_lower_bounds(
         center, mean, sigma, radius, epsilon, reach1, spread1, prune_above
     )

@@ -10,9 +10,13 @@ On a port the belief of `count` obstacles in dimension n is one vector, obstacle
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
+
+from stt_drake.core.motion import Motion, SigmaSchedule
 
 #: Number of scalars after the mean in one obstacle's record: sigma, radius, epsilon, p_d.
 _SCALAR_FIELDS = 4
@@ -77,3 +81,44 @@ class ObstacleBelief:
             epsilon=table[:, dimension + 2],
             p_d=table[:, dimension + 3],
         )
+
+
+class ObstacleModel(Protocol):
+    """What the belief of one obstacle is made from: the mean's motion model, σ (constant,
+    or a schedule), and the task numbers r_o, ε, p_d (a scenario's ``Obstacle`` is one)."""
+
+    motion: Motion
+    radius: float
+    sigma: float
+    sigma_schedule: SigmaSchedule | None
+    epsilon: float
+    p_d: float
+
+
+def obstacle_belief(obstacles: Sequence[ObstacleModel], dimension: int, t: float) -> ObstacleBelief:
+    """The belief of every obstacle in `obstacles` at time t."""
+    return ObstacleBelief(
+        mean=np.array([o.motion.position(t) for o in obstacles]).reshape(len(obstacles), dimension),
+        sigma=np.array([obstacle_sigma(o, t) for o in obstacles]),
+        radius=np.array([o.radius for o in obstacles]),
+        epsilon=np.array([o.epsilon for o in obstacles]),
+        p_d=np.array([o.p_d for o in obstacles]),
+    )
+
+
+def obstacle_rate_bounds(obstacles: Sequence[ObstacleModel]) -> tuple[np.ndarray, np.ndarray]:
+    """Per obstacle, sup ‖μ̇_j‖ and sup |σ̇_j| (m/s) from its motion model and σ schedule,
+    steps excluded (a step is a belief discontinuity, see :mod:`stt_drake.core.motion`)."""
+    mean_speed = np.array([o.motion.speed_bound() for o in obstacles], dtype=float)
+    sigma_rate = np.array(
+        [0.0 if o.sigma_schedule is None else o.sigma_schedule.rate_bound() for o in obstacles],
+        dtype=float,
+    )
+    return mean_speed, sigma_rate
+
+
+def obstacle_sigma(obstacle: ObstacleModel, t: float) -> float:
+    """σ_j(t): the schedule where given, else the constant `sigma`."""
+    if obstacle.sigma_schedule is not None:
+        return obstacle.sigma_schedule.sigma(t)
+    return obstacle.sigma

@@ -617,6 +617,7 @@ class TubeLaw:
                 np.asarray(bounds.sigma_rate, dtype=float),
                 axes,
                 constants["rate"],
+                self.prune_above,
                 float(duration),
                 float(radius),
                 max_attempts,

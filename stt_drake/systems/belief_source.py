@@ -2,12 +2,19 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from pydrake.systems.framework import BasicVector, Context, LeafSystem
 
-from stt_drake.config import Obstacle, obstacle_belief, obstacle_sigma
 from stt_drake.core import backend
-from stt_drake.core.belief import belief_size, record_size
+from stt_drake.core.belief import (
+    ObstacleModel,
+    belief_size,
+    obstacle_belief,
+    obstacle_sigma,
+    record_size,
+)
 from stt_drake.core.motion import ConstantVelocity, Oscillation
 
 
@@ -26,9 +33,8 @@ class ObstacleBeliefSource(LeafSystem):
     schedules are evaluated per obstacle.
     """
 
-    def __init__(self, obstacles: list[Obstacle], dimension: int) -> None:
+    def __init__(self, obstacles: Sequence[ObstacleModel], dimension: int) -> None:
         super().__init__()
-        self.set_name("obstacle_belief_source")
         self._obstacles = list(obstacles)
         self._dimension = dimension
         count = len(self._obstacles)
@@ -58,7 +64,6 @@ class ObstacleBeliefSource(LeafSystem):
         vectorised = set(oscillating) | set(moving)
         self._other = [j for j in range(count) if j not in vectorised]
         self._scheduled = [j for j, o in enumerate(self._obstacles) if o.sigma_schedule is not None]
-        self._last_time, self._last_vector = np.nan, self._template.reshape(-1)
         self.DeclareVectorOutputPort(
             "obstacle_belief",
             belief_size(count, dimension),
@@ -103,10 +108,4 @@ class ObstacleBeliefSource(LeafSystem):
         return vector
 
     def _calc_belief(self, context: Context, output: BasicVector) -> None:
-        # The value is a function of t alone: remember the last one, which the integrator
-        # asks for again at the start of the next step (after the monitor read it).
-        t = context.get_time()
-        if t != self._last_time:
-            self._last_vector = self.belief_vector(t)
-            self._last_time = t
-        output.SetFromVector(self._last_vector)
+        output.SetFromVector(self.belief_vector(context.get_time()))

@@ -13,7 +13,6 @@ class STTController(LeafSystem):
 
     def __init__(self, controller: FunnelController, dimension: int) -> None:
         super().__init__()
-        self.set_name("stt_controller")
         self._controller = controller
         self._dimension = dimension
         self._tube_port = self.DeclareVectorInputPort("tube", dimension + 1)

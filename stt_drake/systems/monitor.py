@@ -122,7 +122,6 @@ class InvariantMonitor(LeafSystem):
 
     def __init__(self, dimension: int, obstacle_count: int, r_min: float) -> None:
         super().__init__()
-        self.set_name("invariant_monitor")
         self._dimension = dimension
         self._r_min = r_min
         self._tube_port = self.DeclareVectorInputPort("tube", dimension + 1)

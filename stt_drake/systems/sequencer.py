@@ -30,7 +30,6 @@ class TargetSequencer(LeafSystem):
         period: float,
     ) -> None:
         super().__init__()
-        self.set_name("target_sequencer")
         self._targets = np.array([np.asarray(t, dtype=float) for t in targets])
         if self._targets.ndim != 2 or len(self._targets) == 0:
             raise ValueError("TargetSequencer: need at least one target of dimension n")

@@ -66,7 +66,6 @@ class SpatiotemporalTube(LeafSystem):
         rate_bounds: BeliefRateBounds | None = None,
     ) -> None:
         super().__init__()
-        self.set_name("spatiotemporal_tube")
         if update_period is not None and rate_bounds is None:
             raise ValueError(
                 "rate_bounds: a fixed-rate tube needs each obstacle's belief rate bounds "
@@ -84,9 +83,6 @@ class SpatiotemporalTube(LeafSystem):
         self._target_port = (
             self.DeclareVectorInputPort("target", self._dimension) if target_input else None
         )
-        self._laws_by_target: dict[bytes, TubeLaw] = {}
-        self._last_key: tuple[bytes, ...] | None = None
-        self._last_evaluation: tuple[TubeEvaluation, np.ndarray] | None = None
         initial_center = np.asarray(initial_center, dtype=float)
         circulates = self._dimension == 3 and obstacle_count > 0
         self._circulation_index = (
@@ -112,6 +108,18 @@ class SpatiotemporalTube(LeafSystem):
                 update_period, update_period, self._discrete_update
             )
             tickets = {self.xd_ticket(), self.time_ticket()}
+        # The law with the target in use: rebuilt only when the `target` input changes.
+        self._target_law = (
+            self.DeclareCacheEntry(
+                description="tube law for the current target",
+                value_producer=ValueProducer(
+                    allocate=AbstractValue.Make(object()).Clone, calc=self._calc_target_law
+                ),
+                prerequisites_of_calc={self.input_port_ticket(self._target_port.get_index())},
+            )
+            if target_input
+            else None
+        )
         self._evaluation = self.DeclareCacheEntry(
             description="tube law evaluation",
             # (TubeEvaluation, [c, r] with the law's exact radius)
@@ -176,37 +184,20 @@ class SpatiotemporalTube(LeafSystem):
         return ObstacleBelief.from_vector(self._belief_port.Eval(context), self._dimension)
 
     def _law_in(self, context: Context) -> TubeLaw:
-        """The law with the target in use: ``law.target``, or the `target` input if declared.
-
-        One law per distinct target is kept (a task sequence has a handful), so a law's
-        cached constants survive across evaluations.
-        """
-        if self._target_port is None:
+        """The law with the target in use: ``law.target``, or the `target` input if declared."""
+        if self._target_law is None:
             return self._law
-        target = self._target_port.Eval(context)
-        key = target.tobytes()
-        law = self._laws_by_target.get(key)
-        if law is None:
-            if len(self._laws_by_target) >= 64:  # a continuously moving target: do not grow
-                self._laws_by_target.clear()
-            law = self._laws_by_target[key] = replace(self._law, target=np.array(target))
-        return law
+        return self._target_law.Eval(context)
+
+    def _calc_target_law(self, context: Context, value: AbstractValue) -> None:
+        value.set_value(replace(self._law, target=np.array(self._target_port.Eval(context))))
 
     def _calc_evaluation(self, context: Context, value: AbstractValue) -> None:
         law = self._law_in(context)
         center = self.center(context)
-        belief = self._belief_port.Eval(context)
-        circulation = self._circulation(context)
-        # The evaluation is a pure function of (c, belief, η, axes). The integrator asks
-        # again for the point the monitor has just checked (start of the next step) after
-        # its cache was invalidated, so the last evaluation is kept and reused on a match.
-        target = b"" if self._target_port is None else np.asarray(law.target).tobytes()
-        axes = b"" if circulation is None else circulation.tobytes()
-        key = (center.tobytes(), belief.tobytes(), target, axes)
-        if key == self._last_key:
-            value.set_value(self._last_evaluation)
-            return
-        evaluation = law.evaluate_packed(center, belief, circulation=circulation)
+        evaluation = law.evaluate_packed(
+            center, self._belief_port.Eval(context), circulation=self._circulation(context)
+        )
         tube = np.empty(self._dimension + 1)  # the `tube` port value, [c, r]
         tube[:-1] = center
         tube[-1] = evaluation.radius
@@ -217,8 +208,7 @@ class SpatiotemporalTube(LeafSystem):
                 f"ċ = {evaluation.center_rate}, r = {evaluation.radius} (a recovery needs "
                 f"a finite max_center_speed, v_c = {law.max_center_speed})"
             )
-        self._last_key, self._last_evaluation = key, (evaluation, tube)
-        value.set_value(self._last_evaluation)
+        value.set_value((evaluation, tube))
 
     def evaluation(self, context: Context) -> TubeEvaluation:
         """The cached law evaluation (ċ, r, q_j, d̂_j, θ_j) in `context`."""

@@ -144,7 +144,6 @@ class ArmRobotInterface(LeafSystem):
 
     def __init__(self, model: MultibodyPlant, gravity_compensation: bool) -> None:
         super().__init__()
-        self.set_name("fr3_robot_interface")
         self._model = model
         self._model_context = model.CreateDefaultContext()
         self._compensate = gravity_compensation
@@ -189,7 +188,6 @@ class ArmMeasurement(LeafSystem):
 
     def __init__(self, plant: MultibodyPlant) -> None:
         super().__init__()
-        self.set_name("fr3_measurement")
         tcp = plant.GetFrameByName(FR3_TCP)
         self._body = int(tcp.body().index())
         self._offset = tcp.GetFixedPoseInBodyFrame()
@@ -230,7 +228,6 @@ class ArmSTTController(LeafSystem):
 
     def __init__(self, law: ArmFunnelLaw, kinematics: ArmKinematics | None = None) -> None:
         super().__init__()
-        self.set_name("arm_stt_controller")
         self._law = law
         self._kinematics = kinematics if kinematics is not None else ArmKinematics()
         self._tube = self.DeclareVectorInputPort("tube", 4)
@@ -310,7 +307,6 @@ class ExternalJerks(LeafSystem):
 
     def __init__(self, jerks: Sequence[Jerk]) -> None:
         super().__init__()
-        self.set_name("external_jerks")
         self._jerks = tuple(jerks)
         self.DeclareAbstractOutputPort(
             "spatial_forces",

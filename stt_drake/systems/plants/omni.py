@@ -54,7 +54,6 @@ class OmniRobot(LeafSystem):
         initial_heading: float = 0.0,
     ) -> None:
         super().__init__()
-        self.set_name("omni_robot")
         self._twist_from_wheels = np.linalg.inv(wheel_matrix(wheel_radius, base_radius))
         self._twist_rows = tuple(tuple(row) for row in self._twist_from_wheels.tolist())
         self.DeclareContinuousState(BasicVector(np.append(initial_position, initial_heading)))
@@ -98,7 +97,6 @@ class OmniDriveInterface(LeafSystem):
         heading_reference: float = 0.0,
     ) -> None:
         super().__init__()
-        self.set_name("omni_drive_interface")
         self._wheels_from_twist = wheel_matrix(nominal_wheel_radius, nominal_base_radius)
         self._wheel_rows = tuple(tuple(row) for row in self._wheels_from_twist.tolist())
         self._heading_gain = heading_gain

@@ -38,7 +38,6 @@ class Quadrotor(LeafSystem):
         initial_velocity: np.ndarray,
     ) -> None:
         super().__init__()
-        self.set_name("quadrotor")
         if mass <= 0.0 or drag < 0.0 or gravity < 0.0:
             raise ValueError(
                 f"Quadrotor: need mass > 0, drag ≥ 0, gravity ≥ 0 (got {mass}, {drag}, {gravity})"

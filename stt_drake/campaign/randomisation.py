@@ -1,0 +1,85 @@
+"""The randomisation campaign's runs: redraw the scenario's random field, simulate, check.
+
+A run loads the scenario with its own seed; a draw that breaks the paper's assumptions
+(the loader raises :class:`stt_drake.config.AssumptionError`) is a rejected draw, not a
+failure. A failing draw is kept as scenario YAML that replays it alone.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from typing import Any
+
+FAILURES_DIR = "failures"
+
+
+def randomisation_run(text: str, name: str, index: int, seed: int) -> dict[str, Any]:
+    """Load the scenario with `seed` (redrawing its random field), simulate, check.
+
+    Record: ``{"run", "seed", "status"}`` with status ``rejected`` (the draw breaks the
+    paper's assumptions; `reason`), ``error`` (the simulation raised; `reason`) or
+    ``simulated`` (then `obstacles`, `reached`, `t_reach`, `holds`, `success` and
+    `invariants` as in metrics.json).
+    """
+    from stt_drake.build import parse_scenario
+    from stt_drake.config import AssumptionError
+    from stt_drake.run import simulate
+
+    record: dict[str, Any] = {"run": index, "seed": seed}
+    try:
+        scenario = parse_scenario(text, default_name=name, seed=seed)
+    except AssumptionError as error:
+        return {**record, "status": "rejected", "reason": str(error)}
+    try:
+        result = simulate(scenario)
+    except Exception as error:  # a crash on one draw is a finding, not the end of the campaign
+        return {**record, "status": "error", "reason": f"{type(error).__name__}: {error}"}
+    metrics = result.metrics
+    return {
+        **record,
+        "status": "simulated",
+        "obstacles": len(scenario.obstacles),
+        "reached": metrics["reached"],
+        "t_reach": metrics["t_reach"],
+        "holds": metrics["holds"],
+        "success": result.success,
+        "invariants": metrics["invariants"],
+    }
+
+
+def randomisation_task(
+    text: str, name: str, runs: Sequence[tuple[int, int]]
+) -> list[dict[str, Any]]:
+    """One executor task: the records of a batch of (run index, seed)."""
+    return [randomisation_run(text, name, index, seed) for index, seed in runs]
+
+
+def draw_failed(record: dict[str, Any]) -> bool:
+    """Whether a run is a failure: the simulation raised, or a guarantee or the goal failed
+    (a rejected draw is not a failure)."""
+    return record["status"] == "error" or (
+        record["status"] == "simulated" and not record["success"]
+    )
+
+
+def failing_draw_yaml(text: str, name: str, seed: int, campaign_seed: int, index: int) -> str:
+    """The scenario text that reproduces one draw: its own `seed` (and `name`) set."""
+    header = (
+        f"# Failing draw: run {index} of a randomisation campaign (campaign seed "
+        f"{campaign_seed}). Replay: stt-drake run <this file>\n"
+    )
+    body = text if text.endswith("\n") else text + "\n"
+    seed_line = re.compile(r"^seed:[^\n]*$", re.MULTILINE)
+    if seed_line.search(body):
+        body = seed_line.sub(f"seed: {seed}", body)
+    else:
+        body += f"seed: {seed}\n"
+    if not re.search(r"^name:", body, re.MULTILINE):
+        body += f"name: {name}\n"
+    return header + body
+
+
+def failure_name(index: int) -> str:
+    """Where run `index`'s failing draw is kept, relative to the campaign folder."""
+    return f"{FAILURES_DIR}/run_{index:06d}.yaml"

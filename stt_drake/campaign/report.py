@@ -1,0 +1,324 @@
+"""What a campaign reports: the per-kind summaries with their simultaneous Clopper-Pearson
+bounds, ``campaign.json``, the figure and the printed table.
+
+Summaries are order-independent functions of the set of runs. The statistics are in
+:mod:`stt_drake.core.statistics`.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from stt_drake.campaign.randomisation import draw_failed, failure_name
+from stt_drake.campaign.sampling import CHECKS, ClosedLoop, output_collided
+from stt_drake.core.statistics import (
+    VIOLATED,
+    clopper_pearson,
+    family_confidence,
+    simultaneous_verdict,
+)
+
+if TYPE_CHECKING:
+    from stt_drake.campaign.executor import CampaignSpec
+
+#: Confidence of every reported interval (jointly, over the whole family of tests).
+CONFIDENCE = 0.99
+SUMMARY_FILE = "campaign.json"
+
+PROCEDURE = (
+    "Simultaneous two-sided Clopper-Pearson intervals, Bonferroni over the whole family "
+    "fixed before sampling: every (check in {output, tube}) x (obstacle) x (logged time). "
+    "Each interval has level 1 - alpha/F (alpha = 0.01, F = family_size), so with "
+    "probability >= 99 % all of them cover their collision probability at once. No "
+    "pilot set, no data-driven choice of times: the worst time is reported, but it is "
+    "tested at the simultaneous level, so taking the worst of many times causes no bias. "
+    "certified: upper bound <= 1 - epsilon_j at every logged time; violated: lower bound "
+    "> 1 - epsilon_j at some logged time; the claim covers the logged times only."
+)
+
+
+def collision_counts(records: Iterable[dict[str, Any]], count: int, steps: int) -> np.ndarray:
+    """Per check, obstacle and time, how many runs collided: (len(CHECKS), m, T) ints."""
+    edges = np.zeros((len(CHECKS), count, steps + 1), dtype=np.int64)
+    for record in records:
+        for c, check in enumerate(CHECKS):
+            for j, ranges in enumerate(record[check]):
+                for start, stop in ranges:
+                    edges[c, j, start] += 1
+                    edges[c, j, stop] -= 1
+    return np.cumsum(edges, axis=2)[:, :, :steps]
+
+
+def summarise_true_obstacles(loop: ClosedLoop, records: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Per obstacle and check: worst-time frequency, simultaneous CP bounds and verdict."""
+    runs = len(records)
+    steps = len(loop.t)
+    counts = collision_counts(records, loop.count, steps)
+    family = len(CHECKS) * loop.count * steps
+    member = family_confidence(CONFIDENCE, family)
+    model = loop.collision_probability()
+    obstacles = []
+    for j in range(loop.count):
+        allowed = 1.0 - float(loop.epsilon[j])
+        entry: dict[str, Any] = {"index": j}
+        for c, check in enumerate(CHECKS):
+            verdict = simultaneous_verdict(counts[c, j], runs, allowed, member, model[check][:, j])
+            record = {
+                "epsilon": float(loop.epsilon[j]),
+                "allowed_collision_probability": allowed,
+                "worst_collision_frequency": verdict.frequency,
+                "collisions_at_worst": int(counts[c, j, verdict.index]),
+                "t_worst": float(loop.t[verdict.index]),
+                "clopper_pearson_upper_99": verdict.upper,
+                "clopper_pearson_lower_99": verdict.lower,
+                "verdict": verdict.verdict,
+                "runs_to_certify": verdict.runs_to_certify,
+                "model_collision_probability_at_t_worst": float(model[check][verdict.index, j]),
+                "model_worst_collision_probability": float(np.max(model[check][:, j])),
+            }
+            if check == "output":
+                entry.update(record)
+            else:
+                entry["tube"] = record
+        obstacles.append(entry)
+    holds = not any(o["verdict"] == VIOLATED or o["tube"]["verdict"] == VIOLATED for o in obstacles)
+    return {
+        "holds": holds,
+        "procedure": {
+            "name": "simultaneous-clopper-pearson-bonferroni",
+            "confidence": CONFIDENCE,
+            "family_size": family,
+            "member_confidence": member,
+            "logged_times": steps,
+            "description": PROCEDURE,
+        },
+        "runs_with_output_collision": sum(output_collided(r) for r in records),
+        "runs_with_tube_collision": sum(any(r["tube"]) for r in records),
+        "obstacles": obstacles,
+    }
+
+
+def _distribution(values: Sequence[float]) -> dict[str, float | None]:
+    if not values:
+        return dict.fromkeys(("min", "p05", "median", "p95", "max", "mean"))
+    data = np.asarray(values, dtype=float)
+    quantiles = np.quantile(data, [0.0, 0.05, 0.5, 0.95, 1.0])
+    keys = ("min", "p05", "median", "p95", "max")
+    return {
+        **{k: float(v) for k, v in zip(keys, quantiles, strict=True)},
+        "mean": float(data.mean()),
+    }
+
+
+def summarise_randomisation(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Fraction of simulated draws where each guarantee held, t_c, worst margins, failures."""
+    simulated = [r for r in records if r["status"] == "simulated"]
+    failed = sorted((r for r in records if draw_failed(r)), key=lambda r: r["run"])
+    guarantees: dict[str, Any] = {}
+    names = list(simulated[0]["invariants"]) if simulated else []
+    for name in names:
+        worst = min(simulated, key=lambda r: (r["invariants"][name]["worst_margin"], r["run"]))
+        held = sum(r["invariants"][name]["holds"] for r in simulated)
+        guarantees[name] = {
+            "held_runs": held,
+            "held_fraction": held / len(simulated),
+            "worst_margin": worst["invariants"][name]["worst_margin"],
+            "t_worst": worst["invariants"][name]["t_worst"],
+            "worst_run": worst["run"],
+            "worst_seed": worst["seed"],
+        }
+    reached = sum(r["reached"] for r in simulated)
+    guarantees["reach_and_stay"] = {
+        "held_runs": reached,
+        "held_fraction": reached / len(simulated) if simulated else None,
+    }
+    valid = len(simulated) + sum(r["status"] == "error" for r in records)  # not rejected
+    upper = float(clopper_pearson(len(failed), valid, CONFIDENCE)[1]) if valid else None
+    return {
+        "holds": bool(simulated) and not failed,
+        "simulated_runs": len(simulated),
+        "rejected_draws": sum(r["status"] == "rejected" for r in records),
+        "error_runs": sum(r["status"] == "error" for r in records),
+        "failed_runs": len(failed),
+        "failure_rate_clopper_pearson_upper_99": upper,
+        "guarantees": guarantees,
+        "t_reach": _distribution([r["t_reach"] for r in simulated if r["t_reach"] is not None]),
+        "failures": [
+            {"run": r["run"], "seed": r["seed"], "yaml": failure_name(r["run"])} for r in failed
+        ],
+        "obstacles": [],
+    }
+
+
+def write_summary(
+    spec: CampaignSpec,
+    scenario_name: str,
+    records: Sequence[dict[str, Any]],
+    out_dir: Path,
+    started: float,
+    closed_loop: ClosedLoop | None = None,
+    closed_loop_summary: dict[str, Any] | None = None,
+    figures: bool = True,
+) -> dict[str, Any]:
+    """Summarise the finished runs, write campaign.json (and the figure) and return it.
+
+    `started` is the campaign's ``time.perf_counter()`` start; `closed_loop` and its
+    summary belong to a true-obstacle campaign.
+    """
+    randomising = spec.kind == "randomisation"
+    if randomising:
+        body = summarise_randomisation(records)
+    else:
+        body = summarise_true_obstacles(closed_loop, records)
+        body["true_obstacle_motion"] = spec.motion
+        body["ou_tau_s"] = spec.tau if spec.motion == "ou" else None
+        body["closed_loop"] = closed_loop_summary
+    summary = {
+        "scenario": scenario_name,
+        "scenario_path": str(Path(spec.scenario)),
+        "kind": spec.kind,
+        "runs": spec.runs,
+        "seed": spec.seed,
+        "run_seed": "SeedSequence(seed, spawn_key=(i,)).generate_state(1)[0]",
+        "wall_time_s": time.perf_counter() - started,
+        **body,
+    }
+    (out_dir / SUMMARY_FILE).write_text(json.dumps(summary, indent=2) + "\n")
+    if figures:
+        if randomising:
+            figure, file = plot_randomisation(summary, records), "randomisation.png"
+        else:
+            figure, file = plot_collision_frequency(closed_loop, records), "collision_frequency.png"
+        figure.savefig(out_dir / file, dpi=120)
+    return summary
+
+
+def plot_collision_frequency(loop: ClosedLoop, records: Sequence[dict[str, Any]]) -> Any:
+    """Empirical collision frequency over time per obstacle (output and tube) with its
+    simultaneous 99 % Clopper-Pearson band, against 1 − ε_j and the belief's prediction."""
+    from matplotlib.figure import Figure
+
+    from stt_drake.plotting import PALETTE
+
+    runs, steps = len(records), len(loop.t)
+    counts = collision_counts(records, loop.count, steps)
+    member = family_confidence(CONFIDENCE, len(CHECKS) * loop.count * steps)
+    model = loop.collision_probability()
+    figure = Figure(figsize=(8.0, 1.9 * loop.count + 0.8), layout="constrained")
+    axes = figure.subplots(loop.count, 1, sharex=True, squeeze=False)[:, 0]
+    styles = {"output": (PALETTE["trajectory"], "output y"), "tube": (PALETTE["tube"], "tube Γ")}
+    for j, ax in enumerate(axes):
+        allowed = 1.0 - loop.epsilon[j]
+        for c, check in enumerate(CHECKS):
+            colour, label = styles[check]
+            lower, upper = clopper_pearson(counts[c, j], runs, member)
+            ax.fill_between(loop.t, lower, upper, color=colour, alpha=0.15, linewidth=0)
+            ax.plot(loop.t, counts[c, j] / runs, color=colour, lw=1.2, label=f"{label}: frequency")
+            ax.plot(
+                loop.t, model[check][:, j], color=colour, lw=0.8, ls=":", label=f"{label}: belief"
+            )
+        ax.axhline(allowed, color=PALETTE["violation"], ls="--", lw=1.0, label="1 − ε_j")
+        ax.set_ylim(0.0, max(1.6 * allowed, 1.1 * float(np.max(counts[:, j])) / runs))
+        ax.set_ylabel(f"obstacle {j}\nP(collision)")
+        ax.set_title(f"obstacle {j}: ε = {loop.epsilon[j]:.3g}", fontsize=9, loc="left")
+    axes[0].legend(fontsize=7, ncols=3, loc="upper right")
+    axes[-1].set_xlabel("t (s)")
+    figure.suptitle(f"true-obstacle campaign, {runs} runs (bands: simultaneous 99 % CP)")
+    return figure
+
+
+def plot_randomisation(summary: dict[str, Any], records: Sequence[dict[str, Any]]) -> Any:
+    """t_c histogram and every run's worst margin per guarantee (red: failed runs)."""
+    from matplotlib.figure import Figure
+
+    from stt_drake.plotting import PALETTE
+
+    simulated = [r for r in records if r["status"] == "simulated"]
+    figure = Figure(figsize=(10.0, 3.6), layout="constrained")
+    left, right = figure.subplots(1, 2, width_ratios=[1, 2])
+    reach = [r["t_reach"] for r in simulated if r["t_reach"] is not None]
+    left.hist(reach, bins=max(5, int(np.sqrt(len(reach) or 1))), color=PALETTE["tube"])
+    left.set_xlabel("t_c (s)")
+    left.set_ylabel("runs")
+    left.set_title(f"reached: {len(reach)} / {len(simulated)} simulated", fontsize=9)
+    names = [n for n in summary["guarantees"] if n != "reach_and_stay"]
+    for k, name in enumerate(names):
+        margins = np.array([r["invariants"][name]["worst_margin"] for r in simulated])
+        colours = [PALETTE["violation"] if draw_failed(r) else PALETTE["margin"] for r in simulated]
+        jitter = np.linspace(-0.25, 0.25, len(margins)) if len(margins) > 1 else [0.0]
+        right.scatter(k + np.asarray(jitter), margins, c=colours, s=8)
+    right.axhline(0.0, color=PALETTE["reference"], lw=0.8)
+    right.set_yscale("symlog", linthresh=1e-3)
+    right.set_xticks(range(len(names)), [n.replace("_", "\n") for n in names], fontsize=7)
+    right.set_ylabel("worst margin per run")
+    figure.suptitle(
+        f"randomisation campaign: {summary['runs']} runs, {summary['rejected_draws']} rejected, "
+        f"{summary['failed_runs']} failed"
+    )
+    return figure
+
+
+def report(summary: dict[str, Any]) -> str:
+    """The printed campaign summary (per-obstacle table for true-obstacle campaigns)."""
+    lines = [
+        f"{summary['kind']} campaign on {summary['scenario']}: {summary['runs']} runs, "
+        f"seed {summary['seed']}, {summary['wall_time_s']:.1f} s wall"
+    ]
+    if summary["kind"] == "true-obstacles":
+        loop = summary["closed_loop"]
+        lines.append(
+            f"  closed loop simulated {loop['simulations']} time(s); true obstacles: "
+            f"{summary['true_obstacle_motion']}"
+            + (f" (OU, τ = {summary['ou_tau_s']:g} s)" if summary["ou_tau_s"] else "")
+        )
+        lines.append(
+            f"  simultaneous 99 % Clopper-Pearson over {summary['procedure']['family_size']} "
+            "(check × obstacle × time) intervals"
+        )
+        lines.append(
+            "  obst  check   ε      1−ε      worst freq  t_worst   CP99 lower  CP99 upper  verdict"
+        )
+        for o in summary["obstacles"]:
+            for check, record in (("output", o), ("tube", o["tube"])):
+                more = ""
+                if record["runs_to_certify"] is not None:
+                    more = f" (≈{record['runs_to_certify']} runs would certify)"
+                lines.append(
+                    f"  #{o['index']:<3} {check:<7} {o['epsilon']:<6.3g} "
+                    f"{record['allowed_collision_probability']:<8.4g} "
+                    f"{record['worst_collision_frequency']:<11.5f} {record['t_worst']:<8.2f}  "
+                    f"{record['clopper_pearson_lower_99']:<11.5f} "
+                    f"{record['clopper_pearson_upper_99']:<11.5f} {record['verdict']}{more}"
+                )
+    else:
+        lines.append(
+            f"  simulated {summary['simulated_runs']}, rejected draws {summary['rejected_draws']}, "
+            f"errors {summary['error_runs']}, failed {summary['failed_runs']}"
+        )
+        for name, g in summary["guarantees"].items():
+            fraction = g["held_fraction"]
+            text = "n/a" if fraction is None else f"{fraction:.3f}"
+            worst = (
+                f", worst margin {g['worst_margin']:+.3e} (run {g['worst_run']})"
+                if "worst_margin" in g
+                else ""
+            )
+            lines.append(f"    {name:<26} held in {text} of runs{worst}")
+        t_reach = summary["t_reach"]
+        if t_reach["median"] is not None:
+            lines.append(
+                f"  t_c: median {t_reach['median']:.2f} s, 5-95 % [{t_reach['p05']:.2f}, "
+                f"{t_reach['p95']:.2f}] s, max {t_reach['max']:.2f} s"
+            )
+        for failure in summary["failures"]:
+            lines.append(
+                f"  failing draw: run {failure['run']} seed {failure['seed']} → {failure['yaml']}"
+            )
+    lines.append("  result: " + ("HOLDS" if summary["holds"] else "DOES NOT HOLD"))
+    return "\n".join(lines)

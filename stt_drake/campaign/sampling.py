@@ -1,0 +1,172 @@
+"""Seeds and true-obstacle sampling of the Monte Carlo campaigns.
+
+Run i's seed is :func:`run_seed` (campaign seed, i). A true-obstacle run draws the
+standardised offsets ξ (:func:`sample_xi`) and samples the true obstacles
+O_j(t) = μ_j(t) + σ_j(t)·ξ_j against one logged :class:`ClosedLoop`
+(:func:`sample_true_obstacles`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stt_drake.core.belief import ObstacleBelief
+
+MOTIONS = ("static", "ou")
+#: The two collision checks of a true-obstacle campaign.
+CHECKS = ("output", "tube")
+
+
+def run_seed(campaign_seed: int, index: int) -> int:
+    """Seed of run `index`: ``SeedSequence(campaign_seed, spawn_key=(index,))``'s first word.
+
+    Equal to ``SeedSequence(campaign_seed).spawn(index + 1)[index].generate_state(1)[0]``,
+    a 32-bit integer; independent of how runs are chunked or scheduled.
+    """
+    sequence = np.random.SeedSequence(campaign_seed, spawn_key=(index,))
+    return int(sequence.generate_state(1)[0])
+
+
+@dataclass(frozen=True)
+class ClosedLoop:
+    """The logged closed loop a true-obstacle campaign samples against.
+
+    `epsilon` is what the campaign checks against; it defaults to the belief's ε but can
+    differ from the ε the tube was simulated with (to test the check itself).
+    """
+
+    t: np.ndarray  # (T,) s
+    output: np.ndarray  # (T, n) robot output y
+    center: np.ndarray  # (T, n) tube centre c
+    radius: np.ndarray  # (T,) tube radius r
+    mean: np.ndarray  # (T, m, n) belief means μ_j(t)
+    sigma: np.ndarray  # (T, m) belief standard deviations σ_j(t)
+    obstacle_radius: np.ndarray  # (T, m) r_o_j
+    epsilon: np.ndarray  # (m,) ε_j checked against
+
+    @property
+    def count(self) -> int:
+        """Number of obstacles m."""
+        return self.sigma.shape[1]
+
+    @classmethod
+    def from_log(cls, log: dict[str, Any], epsilon: Sequence[float] | None = None) -> ClosedLoop:
+        """Decode a :func:`stt_drake.run.simulate` log (or a ``log.npz``)."""
+        n = int(np.asarray(log["dimension"]))
+        t = np.asarray(log["t"], dtype=float)
+        samples = len(t)
+        belief = ObstacleBelief.from_vector(np.asarray(log["belief"]).ravel(), n)
+        m = belief.count // samples
+        checked = belief.epsilon.reshape(samples, m)[0] if epsilon is None else epsilon
+        return cls(
+            t=t,
+            output=np.asarray(log["output"], dtype=float).reshape(samples, n),
+            center=np.asarray(log["center"], dtype=float).reshape(samples, n),
+            radius=np.asarray(log["radius"], dtype=float).reshape(samples),
+            mean=belief.mean.reshape(samples, m, n).copy(),
+            sigma=belief.sigma.reshape(samples, m).copy(),
+            obstacle_radius=belief.radius.reshape(samples, m).copy(),
+            epsilon=np.asarray(checked, dtype=float).reshape(m).copy(),
+        )
+
+    def save(self, path: Path) -> None:
+        """Write every field to an ``.npz`` file."""
+        np.savez_compressed(path, **{f.name: getattr(self, f.name) for f in fields(self)})
+
+    @classmethod
+    def load(cls, path: Path) -> ClosedLoop:
+        """Read a closed loop written by :meth:`save`."""
+        with np.load(path) as data:
+            return cls(**{f.name: data[f.name] for f in fields(cls)})
+
+    def collision_probability(self) -> dict[str, np.ndarray]:
+        """The belief's own collision probabilities (T, m) per check (noncentral χ²)."""
+        from stt_drake.core.probability import avoid_probability
+
+        output = avoid_probability(
+            self.output[:, None, :], self.mean, self.sigma, self.obstacle_radius
+        )
+        tube = avoid_probability(
+            self.center[:, None, :],
+            self.mean,
+            self.sigma,
+            self.obstacle_radius + np.maximum(self.radius, 0.0)[:, None],
+        )
+        return {"output": 1.0 - output, "tube": 1.0 - tube}
+
+
+def sample_xi(
+    seeds: Sequence[int], times: np.ndarray, shape: tuple[int, int], motion: str, tau: float
+) -> np.ndarray:
+    """Standardised true-obstacle offsets ξ for each run: (R, T, m, n), marginally N(0, I).
+
+    Run r's draws come from ``default_rng(seeds[r])`` alone. ``static``: one N(0, I) draw
+    per obstacle, held over time. ``ou``: per axis dξ = −ξ/τ dt + √(2/τ) dW started in its
+    stationary law N(0, 1), discretised exactly on the time grid:
+    ξ_k = a_k ξ_{k−1} + √(1 − a_k²) w_k, a_k = exp(−(t_k − t_{k−1})/τ).
+    """
+    runs = len(seeds)
+    steps = len(times)
+    if motion == "static":
+        draws = np.array([np.random.default_rng(s).standard_normal(shape) for s in seeds])
+        return np.broadcast_to(draws[:, None], (runs, steps, *shape))
+    if motion != "ou":
+        raise ValueError(f"motion must be one of {MOTIONS} (got {motion!r})")
+    noise = np.array([np.random.default_rng(s).standard_normal((steps, *shape)) for s in seeds])
+    decay = np.exp(-np.diff(times) / tau)
+    gain = np.sqrt(-np.expm1(-2.0 * np.diff(times) / tau))
+    for k in range(1, steps):
+        noise[:, k] = decay[k - 1] * noise[:, k - 1] + gain[k - 1] * noise[:, k]
+    return noise
+
+
+def hit_intervals(hit: np.ndarray) -> list[list[list[list[int]]]]:
+    """Collision index ranges of a boolean (R, m, T) array: per run, per obstacle, the list
+    of [start, stop) ranges of t-indices where `hit` is true."""
+    runs, count, _ = hit.shape
+    ranges: list[list[list[list[int]]]] = [[[] for _ in range(count)] for _ in range(runs)]
+    padded = np.zeros((runs, count, hit.shape[2] + 2), dtype=np.int8)
+    padded[:, :, 1:-1] = hit
+    edges = np.diff(padded, axis=2)
+    # nonzero() walks in C order, so the k-th start and k-th stop belong to one range.
+    starts, stops = np.nonzero(edges == 1), np.nonzero(edges == -1)[2]
+    for r, j, start, stop in zip(*starts, stops, strict=True):
+        ranges[r][j].append([int(start), int(stop)])
+    return ranges
+
+
+def sample_true_obstacles(
+    loop: ClosedLoop, motion: str, tau: float, runs: Sequence[tuple[int, int]]
+) -> list[dict[str, Any]]:
+    """One record per (run index, seed): where the output and the tube hit each true obstacle.
+
+    Record: ``{"run", "seed", "output": [[[start, stop), ...] per obstacle], "tube": ...}``
+    (time-index ranges of the closed loop's log). A collision is ‖y − O_j‖ < r_o_j
+    (output) or ‖c − O_j‖ < r_o_j + r (tube), with O_j = μ_j + σ_j·ξ_j.
+    """
+    seeds = [seed for _, seed in runs]
+    xi = sample_xi(seeds, loop.t, loop.mean.shape[1:], motion, tau)
+    scaled = loop.sigma[None, :, :, None] * xi  # σ_j ξ_j: (R, T, m, n)
+    reach = {
+        "output": (loop.output, loop.obstacle_radius),
+        "tube": (loop.center, loop.obstacle_radius + np.maximum(loop.radius, 0.0)[:, None]),
+    }
+    ranges = {}
+    for check, (point, limit) in reach.items():
+        gap = (point[:, None, :] - loop.mean)[None] - scaled  # point − O_j: (R, T, m, n)
+        hit = np.einsum("rtjk,rtjk->rjt", gap, gap) < (limit**2).T[None]
+        ranges[check] = hit_intervals(hit)
+    return [
+        {"run": index, "seed": seed, **{check: ranges[check][r] for check in CHECKS}}
+        for r, (index, seed) in enumerate(runs)
+    ]
+
+
+def output_collided(record: dict[str, Any]) -> bool:
+    """Whether a true-obstacle run's output hit any obstacle."""
+    return any(record["output"])

@@ -1,0 +1,173 @@
+"""Reading a scenario file: YAML text into the :mod:`stt_drake.config.schema` dataclasses,
+unknown keys and type errors reported with their full field path, the random field drawn,
+then :func:`stt_drake.config.validate.validate`."""
+
+import typing
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydrake.common.yaml import yaml_load_typed
+
+from stt_drake.config.random_field import expand_random_obstacles
+from stt_drake.config.schema import Scenario, ScenarioError
+from stt_drake.config.validate import validate, validate_dimension
+
+
+class _TaggedLoader(yaml.SafeLoader):
+    """Reads Drake's ``!Tag {...}`` variant syntax as plain mappings for the key check."""
+
+
+_TaggedLoader.add_multi_constructor(
+    "!", lambda loader, suffix, node: {"__tag__": suffix, **loader.construct_mapping(node)}
+)
+
+
+def _check_keys(schema: Any, data: Any, path: str) -> None:
+    """Reject unknown keys and unknown ``!Tags`` with their full path (Drake's loader omits
+    the nesting path)."""
+    if not isinstance(data, dict):
+        return
+    variants = getattr(schema, "__args__", None)
+    if variants is not None:  # Union / Optional: pick the tagged (or the only data) class
+        classes = [v for v in variants if v is not type(None)]
+        tag = data.get("__tag__")
+        named = [c for c in classes if c.__name__ == tag]
+        if tag is not None and not named:
+            known = ", ".join("!" + c.__name__ for c in classes)
+            raise ScenarioError(f"{path}: unknown type !{tag}; expected one of {known}")
+        schema = named[0] if named else classes[0]
+    elif data.get("__tag__") is not None:  # a tag where the field is not a variant
+        tag, name = data["__tag__"], getattr(schema, "__name__", "?")
+        if tag != name:
+            raise ScenarioError(f"{path}: unknown type !{tag}; expected {name} (untagged)")
+        raise ScenarioError(f"{path}: {name} is the only type here: drop the !{tag} tag")
+    hints = _field_types(schema)
+    if hints is None:
+        return
+    for key, value in data.items():
+        if key == "__tag__":
+            continue
+        if key not in hints:
+            known = ", ".join(hints)
+            raise ScenarioError(f"{path}.{key}: unknown field; known fields are: {known}")
+        hint = hints[key]
+        item_schema = getattr(hint, "__args__", [None])[0] if _is_list(hint) else hint
+        if isinstance(value, list):
+            for i, item in enumerate(value):
+                _check_keys(item_schema, item, f"{path}.{key}[{i}]")
+        else:
+            _check_keys(hint, value, f"{path}.{key}")
+
+
+def _is_list(hint: Any) -> bool:
+    return getattr(hint, "__origin__", None) is list
+
+
+def _type_hints(schema: type) -> dict[str, Any]:
+    return typing.get_type_hints(schema)
+
+
+def _field_types(schema: Any) -> dict[str, Any] | None:
+    """{field: type} of a dataclass or of a Drake-bound config (``__fields__``), else None."""
+    if hasattr(schema, "__dataclass_fields__"):
+        return _type_hints(schema)
+    drake_fields = getattr(schema, "__fields__", None)
+    if isinstance(schema, type) and isinstance(drake_fields, tuple):
+        return {f.name: f.type for f in drake_fields}
+    return None
+
+
+def _locate_type_error(schema: Any, data: Any, path: str) -> str | None:
+    """Find the value Drake's loader choked on, so its message can name the full path.
+
+    Only called after ``yaml_load_typed`` failed; returns None when nothing is found (the
+    caller then reports Drake's own message)."""
+    variants = getattr(schema, "__args__", None)
+    if variants is not None and not _is_list(schema):  # Union / Optional
+        if data is None and type(None) in variants:
+            return None
+        classes = [v for v in variants if v is not type(None)]
+        tag = data.get("__tag__") if isinstance(data, dict) else None
+        named = [c for c in classes if c.__name__ == tag]
+        schema = named[0] if named else classes[0]
+    got = f" (got {data!r})"
+    if _is_list(schema):
+        if not isinstance(data, list):
+            return f"{path}: must be a list{got}"
+        for i, item in enumerate(data):
+            found = _locate_type_error(schema.__args__[0], item, f"{path}[{i}]")
+            if found:
+                return found
+        return None
+    if schema is bool:
+        return None if isinstance(data, bool) else f"{path}: must be true or false{got}"
+    if schema is int:
+        ok = isinstance(data, int) and not isinstance(data, bool)
+        return None if ok or _parses(int, data) else f"{path}: must be an integer{got}"
+    if schema is float:
+        ok = isinstance(data, int | float) and not isinstance(data, bool)
+        return None if ok or _parses(float, data) else f"{path}: must be a number{got}"
+    if schema is str:
+        return None if isinstance(data, str) else f"{path}: must be a string{got}"
+    hints = _field_types(schema)
+    if hints is None:
+        return None
+    if not isinstance(data, dict):
+        return f"{path}: must be a mapping of fields{got}"
+    for key, value in data.items():
+        if key in hints:
+            found = _locate_type_error(hints[key], value, f"{path}.{key}")
+            if found:
+                return found
+    return None
+
+
+def _parses(kind: type, data: Any) -> bool:
+    if not isinstance(data, str):
+        return False
+    try:
+        kind(data)
+    except ValueError:
+        return False
+    return True
+
+
+def read_scenario(path: str | Path, seed: int | None = None) -> Scenario:
+    """Load, expand and validate (:func:`stt_drake.config.validate.validate`) a scenario file;
+    raises ScenarioError on any bad input. :func:`stt_drake.build.load_scenario` adds
+    the checks that need the built laws.
+
+    `seed`, when given, replaces the file's `seed` before anything random is drawn, so a
+    run is reproduced from (file, seed) alone.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ScenarioError(f"{path}: no such scenario file")
+    return read_scenario_text(path.read_text(), default_name=path.stem, seed=seed)
+
+
+def read_scenario_text(
+    text: str, default_name: str = "scenario", seed: int | None = None
+) -> Scenario:
+    """Parse scenario YAML text (see :func:`read_scenario`)."""
+    try:
+        raw = yaml.load(text, Loader=_TaggedLoader)
+    except yaml.YAMLError as error:
+        raise ScenarioError(f"scenario: not valid YAML: {error}") from None
+    if not isinstance(raw, dict):
+        raise ScenarioError("scenario: the file must be a mapping of fields")
+    _check_keys(Scenario, raw, "scenario")
+    try:
+        scenario = yaml_load_typed(schema=Scenario, data=text)
+    except (RuntimeError, ValueError, TypeError, AssertionError) as error:
+        located = _locate_type_error(Scenario, raw, "scenario")
+        raise ScenarioError(located or f"scenario: {error}") from None
+    if not scenario.name:
+        scenario.name = default_name
+    if seed is not None:
+        scenario.seed = seed
+    validate_dimension(scenario)
+    expand_random_obstacles(scenario)
+    validate(scenario)
+    return scenario

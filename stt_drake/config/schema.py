@@ -1,0 +1,259 @@
+"""The scenario schema: the dataclasses one YAML file is loaded into (``diagrams/*.yaml``).
+
+Loaded by :mod:`stt_drake.config.load` with ``pydrake.common.yaml.yaml_load_typed`` and
+checked by :mod:`stt_drake.config.validate`; the rules that need the built laws or the
+arm model are in :mod:`stt_drake.build.checks`.
+"""
+
+import math
+from dataclasses import dataclass, field
+from typing import Union
+
+import numpy as np
+from pydrake.systems.analysis import SimulatorConfig
+
+from stt_drake.core.belief import ObstacleBelief, obstacle_belief
+from stt_drake.core.motion import ConstantVelocity, Motion, SigmaSchedule
+from stt_drake.core.tube import default_nu
+
+
+class ScenarioError(ValueError):
+    """A scenario file breaks a rule; the message names the field path and the rule."""
+
+
+class AssumptionError(ScenarioError):
+    """The file is well formed, but what it describes breaks one of the paper's assumptions
+    (random obstacles that cannot be placed clear of start and target, an initial
+    avoidance condition q_j(s, 0) > ε_j that fails): a randomisation campaign counts such a
+    draw as rejected, not as a failure."""
+
+
+@dataclass
+class Obstacle:
+    """One uncertain obstacle (Def. 2.1): a ball of `radius` around a Gaussian centre.
+
+    `sigma` is the standard deviation of the centre per axis in metres (σ, not σ²);
+    `sigma_schedule`, when given, replaces it with a piecewise-linear σ(t).
+    """
+
+    motion: Motion = field(default_factory=ConstantVelocity)
+    radius: float = 0.15
+    sigma: float = 0.1
+    sigma_schedule: SigmaSchedule | None = None
+    epsilon: float = 0.9
+    p_d: float = 0.9999
+
+
+@dataclass
+class RandomObstacles:
+    """A field of oscillating obstacles drawn from a seeded generator.
+
+    Means are uniform in [region_min, region_max]; sigma, epsilon, oscillation amplitude
+    (per axis) and frequency are uniform in their [low, high] ranges. A draw is kept only
+    if its whole path stays clear of the start and the target with probability ≥ p_d
+    (checked with the buffered radius r_o + r_min; Assumption 3.1 and the initial
+    condition of Def. 2.2). `count_range` = [low, high], when given instead of `count`,
+    draws the number of obstacles uniformly from those integers (randomisation campaigns).
+    """
+
+    count: int = 0
+    count_range: list[int] = field(default_factory=list)
+    seed: int = 0
+    region_min: list[float] = field(default_factory=list)
+    region_max: list[float] = field(default_factory=list)
+    radius: float = 0.3
+    sigma_range: list[float] = field(default_factory=lambda: [0.1, 1.0])
+    epsilon_range: list[float] = field(default_factory=lambda: [0.7, 0.99])
+    p_d: float = 0.9999
+    amplitude_range: list[float] = field(default_factory=lambda: [0.0, 1.0])
+    frequency_range_hz: list[float] = field(default_factory=lambda: [0.01, 0.05])
+
+
+@dataclass
+class TubeConfig:
+    """Tube law constants (eqs. cen_dynamic, rad_sol). `nu` = 0 means "derive it":
+    ν = 2 ln(n_o + 1)/r_min, which keeps r ≥ r_min/2. `update_rate_hz` = 0 integrates the
+    centre in continuous time; > 0 runs the fixed-rate (real-time) discrete update.
+    `max_center_speed` (m/s) bounds |ċ| always, and is the speed of a recovery (0 derives
+    it from what the plant can follow, see :func:`stt_drake.build.feasibility.following_speed`)."""
+
+    r_min: float = 0.1
+    r_max: float = 0.3
+    k1: float = 0.5
+    k2: float = 0.4
+    k3: float = 0.4
+    nu: float = 0.0
+    update_rate_hz: float = 0.0
+    max_center_speed: float = 0.0
+
+
+@dataclass
+class FunnelConfig:
+    """Box funnel γ(t) = (start − end)e^{−rate t} + end of one stage k ≥ 2 (per axis)."""
+
+    start: list[float] = field(default_factory=list)
+    end: list[float] = field(default_factory=list)
+    rate: list[float] = field(default_factory=list)
+
+
+@dataclass
+class ControllerConfig:
+    """Funnel controller gains κ_1..κ_N and the box funnels of stages 2..N."""
+
+    kappa: list[float] = field(default_factory=lambda: [1.0])
+    funnels: list[FunnelConfig] = field(default_factory=list)
+
+
+@dataclass
+class OmniRobot:
+    """Three-wheel omnidirectional base. True wheel and base radii differ from the nominal
+    ones its drive interface uses; the STT controller knows neither. `disturbance_amplitude`
+    (m/s per world axis) and `disturbance_frequency_hz` set an additive sinusoidal
+    velocity disturbance. `initial_position` defaults to the scenario's start."""
+
+    wheel_radius: float = 0.052
+    base_radius: float = 0.21
+    nominal_wheel_radius: float = 0.05
+    nominal_base_radius: float = 0.2
+    heading_gain: float = 2.0
+    initial_heading: float = 0.0
+    initial_position: list[float] = field(default_factory=list)
+    disturbance_amplitude: list[float] = field(default_factory=lambda: [0.0, 0.0])
+    disturbance_frequency_hz: float = 0.2
+
+
+@dataclass
+class Quadrotor:
+    """UAV as a second-order point mass in 3D (case study 2): m·v̇ = u − m·g·e_z − c_d·v + w.
+
+    `mass` (kg), `drag` (linear drag c_d, N·s/m) and `gravity` (m/s²) are the true values;
+    the STT controller knows none of them. `initial_position` defaults to the start;
+    `initial_velocity` (m/s) must lie inside stage 2's first box funnel. The wind is a
+    bounded force (N): per axis i, w_i(t) = A_i/K · Σ_k sin(2π f_k t + φ_ik) over the K
+    `wind_frequencies_hz`, so |w_i| ≤ A_i = `wind_amplitude[i]`; the phases φ_ik are drawn
+    from the scenario seed. `body_radius` (m) only sizes the Meshcat visual.
+    """
+
+    mass: float = 1.0
+    drag: float = 0.2
+    gravity: float = 9.81
+    initial_position: list[float] = field(default_factory=list)
+    initial_velocity: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    wind_amplitude: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    wind_frequencies_hz: list[float] = field(default_factory=lambda: [0.1])
+    body_radius: float = 0.25
+
+
+@dataclass
+class ArmJerk:
+    """One impulsive external push on an arm link: a half-sine force pulse of peak `force`
+    (N, world frame) at `point` (m, in the link frame) on `link`, from `time` for `duration`
+    seconds. `link` is one of fr3_link1..fr3_link7 or fr3_hand."""
+
+    time: float = 0.0
+    duration: float = 0.1
+    link: str = "fr3_link7"
+    force: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    point: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+#: libfranka's start ("ready") configuration of the FR3, rad.
+_FR3_READY = (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4)
+
+
+@dataclass
+class FrankaArm:
+    """Franka Research 3 arm with a welded Franka Hand (case study 3); y = the hand's TCP.
+
+    Robot: `initial_configuration` q(0) (rad, at rest); `gravity_compensation`: the robot
+    interface adds g(q) of the robot's own model to the commanded torque, as the real FR3
+    does (false: the STT controller alone carries the arm's weight); `jerks`: external
+    pushes. Task: the tube visits the `waypoints` (m, in order) and then the scenario's
+    `target`, one reach-avoid-stay task each; a task is done when Γ(t) ⊂ B(η_k,
+    target_set_radius) held for `hold_time` seconds. Controller mapping (kinematics only):
+    damped least squares with `jacobian_damping` λ (m), and a null-space term pulling to the
+    home posture with `posture_gain` (1/s) and away from joint limits within `limit_margin`
+    (rad) at up to `limit_gain` (rad/s).
+    """
+
+    initial_configuration: list[float] = field(default_factory=lambda: list(_FR3_READY))
+    gravity_compensation: bool = True
+    waypoints: list[list[float]] = field(default_factory=list)
+    hold_time: float = 0.3
+    jacobian_damping: float = 0.02
+    posture_gain: float = 1.0
+    limit_margin: float = 0.25
+    limit_gain: float = 1.0
+    jerks: list[ArmJerk] = field(default_factory=list)
+
+
+# OmniRobot first: an untagged `plant:` mapping is an OmniRobot (Drake's yaml takes the
+# first variant); a UAV is written `plant: !Quadrotor {...}`, the arm `plant: !FrankaArm`.
+Plant = Union[OmniRobot, Quadrotor, FrankaArm]  # noqa: UP007 (drake yaml needs typing.Union)
+
+#: Output-space dimension each plant works in.
+PLANT_DIMENSION = {OmniRobot: 2, Quadrotor: 3, FrankaArm: 3}
+
+#: Number of stages N of eq. (sysdyn) each plant has: the controller needs N gains κ and
+#: N − 1 box funnels.
+PLANT_STAGES = {OmniRobot: 1, Quadrotor: 2, FrankaArm: 2}
+
+#: Size of the box funnels of stages 2..N where it is not n: the arm's stage 2 is on its
+#: 7 joint velocities.
+PLANT_FUNNEL_DIMENSION = {FrankaArm: 7}
+
+
+def _default_simulator_config() -> SimulatorConfig:
+    return SimulatorConfig(
+        integration_scheme="runge_kutta3",
+        max_step_size=0.01,
+        accuracy=1e-6,
+        use_error_control=True,
+    )
+
+
+@dataclass
+class Scenario:
+    """One PrT-RAS experiment: task, obstacles, tube, controller, plant, simulation."""
+
+    name: str = ""
+    start: list[float] = field(default_factory=list)
+    initial_set_radius: float = 0.5
+    target: list[float] = field(default_factory=list)
+    target_set_radius: float = 0.5
+    duration: float = 30.0
+    seed: int = 0
+    obstacles: list[Obstacle] = field(default_factory=list)
+    random_obstacles: RandomObstacles | None = None
+    tube: TubeConfig = field(default_factory=TubeConfig)
+    controller: ControllerConfig = field(default_factory=ControllerConfig)
+    plant: Plant = field(default_factory=OmniRobot)
+    simulator: SimulatorConfig = field(default_factory=_default_simulator_config)
+    log_period: float = 0.02
+    strict: bool = False
+    max_steps_per_second: float = 0.0
+
+    @property
+    def dimension(self) -> int:
+        return len(self.start)
+
+    @property
+    def nu(self) -> float:
+        """The soft-min sharpness in use (the given one, or the derived default)."""
+        if self.tube.nu > 0.0:
+            return self.tube.nu
+        return default_nu(len(self.obstacles), self.tube.r_min)
+
+    def belief_at(self, t: float) -> ObstacleBelief:
+        """The belief of every obstacle at time t."""
+        return obstacle_belief(self.obstacles, self.dimension, t)
+
+    def task_targets(self) -> list[np.ndarray]:
+        """The reach-avoid-stay targets in order: the arm's waypoints, then `target`."""
+        waypoints = getattr(self.plant, "waypoints", [])
+        return [np.asarray(p, dtype=float) for p in [*waypoints, self.target]]
+
+    def initial_output(self) -> np.ndarray:
+        """y(0): the plant's initial position where given, else the start point s."""
+        position = getattr(self.plant, "initial_position", None)
+        return np.asarray(position if position else self.start, dtype=float)

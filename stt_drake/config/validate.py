@@ -1,0 +1,297 @@
+"""The rules of the paper and of the file format that a scenario can be checked against
+without building anything: shapes, signs, ranges, ν, the plant's fields, the controller's
+gains and funnels, and the initial avoidance condition q_j(s, 0) > ε_j (J(0) > 0 in the
+proof of Thm 3.1 (ii)). Every broken rule raises :class:`ScenarioError` naming the full
+field path and the rule.
+"""
+
+import math
+from typing import Any
+
+import numpy as np
+
+from stt_drake.config.schema import (
+    PLANT_DIMENSION,
+    PLANT_FUNNEL_DIMENSION,
+    PLANT_STAGES,
+    AssumptionError,
+    ControllerConfig,
+    Obstacle,
+    OmniRobot,
+    Quadrotor,
+    Scenario,
+    ScenarioError,
+)
+from stt_drake.core.motion import ConstantVelocity, Motion, Oscillation, Waypoints
+from stt_drake.core.probability import avoid_probability
+from stt_drake.core.tube import minimum_nu
+
+
+def require(condition: bool, path: str, rule: str, value: Any) -> None:
+    """Raise ScenarioError "<path>: <rule> (got <value>)" unless `condition`."""
+    if not condition:
+        raise ScenarioError(f"{path}: {rule} (got {value!r})")
+
+
+def require_vector(value: list[float], length: int, path: str) -> None:
+    """`value` has `length` finite entries."""
+    require(len(value) == length, path, f"must have {length} entries", value)
+    require(all(math.isfinite(v) for v in value), path, "must be finite", value)
+
+
+def require_range(value: list[float], path: str, low: float, high: float) -> None:
+    """`value` is an interval [a, b] inside [low, high]."""
+    require(len(value) == 2 and value[0] <= value[1], path, "must be [low, high]", value)
+    require(low <= value[0] and value[1] <= high, path, f"must lie in [{low}, {high}]", value)
+
+
+def _require_step_times(times: list[float], path: str) -> None:
+    """Times of a piecewise-linear model: finite, non-decreasing, each at most twice (a
+    repeated time is a step, see :mod:`stt_drake.core.motion`)."""
+    require(all(math.isfinite(t) for t in times), path, "must be finite", times)
+    steps = np.diff(np.asarray(times, dtype=float))
+    require(
+        bool(np.all(steps >= 0.0)) and not bool(np.any((steps[1:] == 0.0) & (steps[:-1] == 0.0))),
+        path,
+        "must increase (a time may be repeated once: a step)",
+        times,
+    )
+
+
+def _validate_motion(motion: Motion, n: int, path: str) -> None:
+    if isinstance(motion, ConstantVelocity):
+        require_vector(motion.start, n, f"{path}.start")
+        require_vector(motion.velocity, n, f"{path}.velocity")
+    elif isinstance(motion, Oscillation):
+        require_vector(motion.center, n, f"{path}.center")
+        require_vector(motion.amplitude, n, f"{path}.amplitude")
+        if motion.phase:
+            require_vector(motion.phase, n, f"{path}.phase")
+        require(
+            motion.frequency_hz >= 0.0, f"{path}.frequency_hz", "must be ≥ 0", motion.frequency_hz
+        )
+    elif isinstance(motion, Waypoints):
+        require(len(motion.times) >= 1, f"{path}.times", "needs at least one time", motion.times)
+        require(
+            len(motion.positions) == len(motion.times),
+            f"{path}.positions",
+            "needs one position per time",
+            motion.positions,
+        )
+        _require_step_times(motion.times, f"{path}.times")
+        for i, position in enumerate(motion.positions):
+            require_vector(position, n, f"{path}.positions[{i}]")
+
+
+def _validate_obstacle(obstacle: Obstacle, n: int, path: str) -> None:
+    _validate_motion(obstacle.motion, n, f"{path}.motion")
+    require(obstacle.radius > 0.0, f"{path}.radius", "must be > 0 (metres)", obstacle.radius)
+    require(
+        obstacle.sigma > 0.0,
+        f"{path}.sigma",
+        "must be > 0 (a standard deviation in metres)",
+        obstacle.sigma,
+    )
+    if obstacle.sigma_schedule is not None:
+        schedule = obstacle.sigma_schedule
+        require(
+            len(schedule.times) >= 1 and len(schedule.times) == len(schedule.values),
+            f"{path}.sigma_schedule",
+            "needs as many values as times (≥ 1)",
+            schedule,
+        )
+        _require_step_times(schedule.times, f"{path}.sigma_schedule.times")
+        require(
+            all(v > 0.0 for v in schedule.values),
+            f"{path}.sigma_schedule.values",
+            "must all be > 0 (standard deviations in metres)",
+            schedule.values,
+        )
+    require(
+        0.0 < obstacle.epsilon <= 1.0, f"{path}.epsilon", "must lie in (0, 1]", obstacle.epsilon
+    )
+    require(
+        obstacle.epsilon < obstacle.p_d <= 1.0,
+        f"{path}.p_d",
+        f"must lie in (epsilon, 1] = ({obstacle.epsilon}, 1]",
+        obstacle.p_d,
+    )
+
+
+def _validate_controller(config: ControllerConfig, n: int, stages: int) -> None:
+    path = "scenario.controller"
+    require(
+        len(config.kappa) == stages,
+        f"{path}.kappa",
+        f"this plant has {stages} stage(s): give {stages} gain(s)",
+        config.kappa,
+    )
+    require(all(k > 0.0 for k in config.kappa), f"{path}.kappa", "must all be > 0", config.kappa)
+    require(
+        len(config.funnels) == stages - 1,
+        f"{path}.funnels",
+        f"need {stages - 1} box funnel(s) for stages 2..{stages}",
+        len(config.funnels),
+    )
+    for i, funnel in enumerate(config.funnels):
+        where = f"{path}.funnels[{i}]"
+        for name in ("start", "end", "rate"):
+            require_vector(getattr(funnel, name), n, f"{where}.{name}")
+        require(
+            all(0.0 < e < s for s, e in zip(funnel.start, funnel.end, strict=True)),
+            f"{where}.end",
+            "must satisfy 0 < end < start per axis",
+            funnel.end,
+        )
+        require(all(r >= 0.0 for r in funnel.rate), f"{where}.rate", "must be ≥ 0", funnel.rate)
+
+
+def validate_dimension(scenario: Scenario) -> None:
+    """The plant fixes n; `start` must match it before any other vector is checked."""
+    expected = PLANT_DIMENSION[type(scenario.plant)]
+    require(
+        scenario.dimension == expected,
+        "scenario.start",
+        f"{type(scenario.plant).__name__} works in {expected} dimensions: give {expected} entries",
+        scenario.start,
+    )
+
+
+def _validate_plant(scenario: Scenario) -> None:
+    plant, n = scenario.plant, scenario.dimension
+    path = "scenario.plant"
+    if isinstance(plant, OmniRobot):
+        for name in ("wheel_radius", "base_radius", "nominal_wheel_radius", "nominal_base_radius"):
+            value = getattr(plant, name)
+            require(value > 0.0, f"{path}.{name}", "must be > 0 (metres)", value)
+        require(plant.heading_gain > 0.0, f"{path}.heading_gain", "must be > 0", plant.heading_gain)
+        require_vector(plant.disturbance_amplitude, n, f"{path}.disturbance_amplitude")
+        if plant.initial_position:
+            require_vector(plant.initial_position, n, f"{path}.initial_position")
+    elif isinstance(plant, Quadrotor):
+        require(plant.mass > 0.0, f"{path}.mass", "must be > 0 (kg)", plant.mass)
+        require(plant.drag >= 0.0, f"{path}.drag", "must be ≥ 0 (N·s/m)", plant.drag)
+        require(plant.gravity >= 0.0, f"{path}.gravity", "must be ≥ 0 (m/s²)", plant.gravity)
+        if plant.initial_position:
+            require_vector(plant.initial_position, n, f"{path}.initial_position")
+        require_vector(plant.initial_velocity, n, f"{path}.initial_velocity")
+        require_vector(plant.wind_amplitude, n, f"{path}.wind_amplitude")
+        require(
+            all(a >= 0.0 for a in plant.wind_amplitude),
+            f"{path}.wind_amplitude",
+            "must all be ≥ 0 (N, the bound |w_i| ≤ A_i)",
+            plant.wind_amplitude,
+        )
+        frequencies = plant.wind_frequencies_hz
+        require(
+            len(frequencies) >= 1 and all(math.isfinite(f) and f >= 0.0 for f in frequencies),
+            f"{path}.wind_frequencies_hz",
+            "needs at least one finite frequency ≥ 0 (Hz)",
+            frequencies,
+        )
+        require(
+            plant.body_radius > 0.0,
+            f"{path}.body_radius",
+            "must be > 0 (metres)",
+            plant.body_radius,
+        )
+
+
+def validate(scenario: Scenario) -> None:
+    """Check every rule of the paper and of the file format that needs no built law or
+    plant model (those are :func:`stt_drake.build.checks.check_buildable`); raise
+    ScenarioError (AssumptionError when the initial avoidance condition fails)."""
+    validate_dimension(scenario)
+    n = scenario.dimension
+    require(n >= 1, "scenario.start", "must have at least one entry", scenario.start)
+    require_vector(scenario.start, n, "scenario.start")
+    require_vector(scenario.target, n, "scenario.target")
+    require(
+        0.0 < scenario.duration < math.inf,
+        "scenario.duration",
+        "must be finite and > 0 (seconds)",
+        scenario.duration,
+    )
+    require(
+        scenario.log_period > 0.0,
+        "scenario.log_period",
+        "must be > 0 (seconds)",
+        scenario.log_period,
+    )
+    require(
+        0.0 <= scenario.max_steps_per_second < math.inf,
+        "scenario.max_steps_per_second",
+        "must be finite and ≥ 0 (steps per simulated second; 0 = the watchdog's default)",
+        scenario.max_steps_per_second,
+    )
+    tube = scenario.tube
+    require(tube.r_min > 0.0, "scenario.tube.r_min", "must be > 0 (metres)", tube.r_min)
+    require(
+        tube.r_min < tube.r_max,
+        "scenario.tube.r_max",
+        f"must be > r_min = {tube.r_min}",
+        tube.r_max,
+    )
+    require(
+        tube.r_max <= scenario.initial_set_radius,
+        "scenario.tube.r_max",
+        f"must be ≤ initial_set_radius = {scenario.initial_set_radius} so Γ(0) ⊂ S",
+        tube.r_max,
+    )
+    require(
+        tube.r_max <= scenario.target_set_radius,
+        "scenario.tube.r_max",
+        f"must be ≤ target_set_radius = {scenario.target_set_radius} so Γ ⊂ T can hold",
+        tube.r_max,
+    )
+    for name in ("k1", "k2"):
+        require(
+            getattr(tube, name) > 0.0, f"scenario.tube.{name}", "must be > 0", getattr(tube, name)
+        )
+    require(tube.k3 >= 0.0, "scenario.tube.k3", "must be ≥ 0", tube.k3)
+    require(
+        tube.update_rate_hz >= 0.0,
+        "scenario.tube.update_rate_hz",
+        "must be ≥ 0 (0 = continuous time)",
+        tube.update_rate_hz,
+    )
+    for i, obstacle in enumerate(scenario.obstacles):
+        _validate_obstacle(obstacle, n, f"scenario.obstacles[{i}]")
+    bound = minimum_nu(len(scenario.obstacles), tube.r_min)
+    require(
+        tube.nu == 0.0 or tube.nu > bound,
+        "scenario.tube.nu",
+        f"must exceed ln(n_o + 1)/r_min = {bound:.4g} for {len(scenario.obstacles)} "
+        "obstacles, or the soft-min radius can go negative (0 derives it)",
+        tube.nu,
+    )
+    _validate_plant(scenario)
+    stages = PLANT_STAGES[type(scenario.plant)]
+    funnel_dimension = PLANT_FUNNEL_DIMENSION.get(type(scenario.plant), n)
+    _validate_controller(scenario.controller, funnel_dimension, stages)
+    _validate_initial_condition(scenario)
+
+
+def _validate_initial_condition(scenario: Scenario) -> None:
+    """q_j(s, 0) > ε_j for every obstacle (J(0) > 0 in the proof of claim ii), and y(0) ∈ S."""
+    if scenario.obstacles:
+        belief = scenario.belief_at(0.0)
+        q = avoid_probability(
+            np.asarray(scenario.start),
+            belief.mean,
+            belief.sigma,
+            belief.radius + scenario.tube.r_min,
+        )
+        for j in np.flatnonzero(q <= belief.epsilon):
+            raise AssumptionError(
+                f"scenario.start: the initial avoidance condition fails for obstacle {j}: "
+                f"q_{j}(s, 0) = {q[j]:.6g} must exceed epsilon = {belief.epsilon[j]} "
+                f"(move the start or the obstacle) (got {scenario.start!r})"
+            )
+    offset = float(np.linalg.norm(scenario.initial_output() - np.asarray(scenario.start)))
+    require(
+        offset < scenario.tube.r_min,
+        "scenario.plant.initial_position",
+        f"must lie within r_min = {scenario.tube.r_min} of start so y(0) ∈ Γ(0)",
+        scenario.initial_output().tolist(),
+    )
