@@ -19,12 +19,14 @@ demo: $(STAMP)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
+	$(BIN)/lint-imports
 
 # Drake may use the network only for Meshcat (localhost) and to *register* its package map:
 # with "meshcat" alone, constructing any multibody Parser fails offline (checked here), and
 # no test may download anything (a `package://drake_models` model would fail to load).
 test: $(STAMP) system-packages
 	$(BIN)/ruff check .
+	$(BIN)/lint-imports
 	DRAKE_ALLOW_NETWORK=meshcat:package_map MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist loadfile
 
 # Graphviz (`stt-drake diagram`) and headless Chromium (the replay test) are Debian packages.

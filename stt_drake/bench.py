@@ -284,11 +284,10 @@ def bench_closed_loop(
     path = DIAGRAMS / f"{name}.yaml"
     if not path.exists():
         return {"available": False, "reason": f"{path.name} not found"}
-    from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
-
     from stt_drake.build import load_scenario
     from stt_drake.build.diagram import build_diagram
     from stt_drake.core.invariants import InvariantTracker
+    from stt_drake.run import make_simulator
 
     scenario = load_scenario(path)
     if duration is not None:
@@ -301,10 +300,8 @@ def bench_closed_loop(
     runs = []
     for _ in range(repeats):
         built = build_diagram(scenario)
-        simulator = Simulator(built.diagram)
-        ApplySimulatorConfig(scenario.simulator, simulator)
         tracker = InvariantTracker()
-        built.monitor.attach(simulator, tracker, False)  # every guarantee, every step
+        simulator = make_simulator(built, scenario, tracker)  # every guarantee, every step
         simulator.Initialize()
         wall, cpu = time.perf_counter(), time.process_time()
         simulator.AdvanceTo(scenario.duration)
@@ -353,17 +350,14 @@ def profile_closed_loop(name: str, duration: float = 10.0, top: int = 25) -> dic
     path = DIAGRAMS / f"{name}.yaml"
     if not path.exists():
         return {"available": False, "reason": f"{path.name} not found"}
-    from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
-
     from stt_drake.build import load_scenario
     from stt_drake.build.diagram import build_diagram
     from stt_drake.core.invariants import InvariantTracker
+    from stt_drake.run import make_simulator
 
     scenario = load_scenario(path)
     built = build_diagram(scenario)
-    simulator = Simulator(built.diagram)
-    ApplySimulatorConfig(scenario.simulator, simulator)
-    built.monitor.attach(simulator, InvariantTracker(), False)
+    simulator = make_simulator(built, scenario, InvariantTracker())
     simulator.Initialize()
     simulator.AdvanceTo(min(0.1, duration))  # warm-up: kernels loaded, caches allocated
     profiler = cProfile.Profile()

@@ -16,8 +16,10 @@ from scipy.stats import ncx2
 
 from stt_drake.core import backend
 from stt_drake.core.belief import ObstacleBelief
+from stt_drake.core.circulation import carry_circulation, null_space_direction
+from stt_drake.core.fixed_rate import BeliefRateBounds
 from stt_drake.core.probability import period_avoid_probability, segment_avoid_lower_bound
-from stt_drake.core.tube import BeliefRateBounds, TubeLaw, carry_circulation, null_space_direction
+from stt_drake.core.tube import TubeLaw
 
 RNG_SEED = 20261122
 
@@ -212,7 +214,7 @@ def test_end_radius_bound_keeps_the_linear_radius_under_the_lipschitz_envelope()
     """For random r_k ≤ D0, D ≤ D0 and ℓ: the linear radius from r_k to the bound stays
     under max(D0 − sℓ, D) on a dense grid of s, and 1 mm more crosses it somewhere (the
     bound is the largest such end radius)."""
-    from stt_drake.core.tube import end_radius_bound
+    from stt_drake.core.fixed_rate import end_radius_bound
 
     rng = np.random.default_rng(RNG_SEED)
     s = np.linspace(0.0, 1.0, 2001)

@@ -409,10 +409,36 @@ def test_pure_numpy_block_restores_the_previous_choice():
     before = backend.using_compiled()
     with backend.pure_numpy():
         assert not backend.using_compiled()
-        assert backend.kernels() is None
+        assert backend.compiled("tube_step", 2) is None
+        assert backend.compiled("funnel_control") is None
         with backend.pure_numpy(False):
-            assert backend.kernels() is kernels
+            assert backend.compiled("tube_step", 2) is kernels.tube_step
+            assert backend.compiled("funnel_control") is kernels.funnel_control
     assert backend.using_compiled() == before
+
+
+def test_every_dispatched_kernel_exists():
+    for name in backend.KERNELS:
+        assert callable(getattr(kernels, name)), name
+
+
+@pytest.mark.parametrize("path", [False, True])
+def test_unknown_kernel_name_raises_on_either_path(path):
+    # A typo must not silently select the numpy path.
+    with backend.pure_numpy(path), pytest.raises(KeyError, match="unknown compiled kernel"):
+        backend.compiled("tube_stepp", 2)
+
+
+def test_dimension_rule():
+    with backend.pure_numpy(False):
+        for n in backend.COMPILED_DIMENSIONS:
+            assert backend.compiled("chi_sf_array", n) is kernels.chi_sf_array
+        for n in (0, 4, 7):
+            assert backend.compiled("chi_sf_array", n) is None  # the numpy reference
+        # Kernels for any n ignore the rule.
+        assert backend.compiled("belief_table", 5) is kernels.belief_table
+        with pytest.raises(TypeError, match="pass dimension"):
+            backend.compiled("invariant_margins")
 
 
 def test_closed_loop_agrees_between_paths():

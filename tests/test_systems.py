@@ -25,10 +25,11 @@ from stt_drake.build.diagram import build_diagram
 from stt_drake.config import Obstacle
 from stt_drake.core.belief import ObstacleBelief, belief_size
 from stt_drake.core.control import BoxFunnel, FunnelController
+from stt_drake.core.fixed_rate import BeliefRateBounds
 from stt_drake.core.invariants import INVARIANT_NAMES, InvariantTracker, evaluate_invariants
 from stt_drake.core.motion import ConstantVelocity, Oscillation, SigmaSchedule, Waypoints
 from stt_drake.core.probability import avoid_probability
-from stt_drake.core.tube import BeliefRateBounds, TubeLaw, linear_zone_for_step
+from stt_drake.core.tube import TubeLaw, linear_zone_for_step
 from stt_drake.systems.belief_source import ObstacleBeliefSource
 from stt_drake.systems.controller import STTController
 from stt_drake.systems.monitor import InvariantMonitor

@@ -19,6 +19,7 @@ from scipy.stats import ncx2
 
 from stt_drake.core import backend
 from stt_drake.core.belief import ObstacleBelief
+from stt_drake.core.circulation import null_space_direction
 from stt_drake.core.probability import ball_avoid_probability
 from stt_drake.core.tube import (
     TubeLaw,
@@ -27,7 +28,6 @@ from stt_drake.core.tube import (
     default_nu,
     linear_zone_for_step,
     minimum_nu,
-    null_space_direction,
     signed_cube_root_attraction,
 )
 

@@ -23,8 +23,8 @@ from stt_drake.build import load_scenario, parse_scenario
 from stt_drake.config import Quadrotor as QuadrotorConfig
 from stt_drake.config import ScenarioError
 from stt_drake.core.belief import ObstacleBelief
+from stt_drake.core.circulation import null_space_direction
 from stt_drake.core.invariants import INVARIANT_NAMES
-from stt_drake.core.tube import null_space_direction
 from stt_drake.run import RunResult, simulate
 from stt_drake.systems.plants.quadrotor import Quadrotor
 

@@ -20,7 +20,7 @@ band alone would exceed the saturated stage-1 pull.
 *Tube demand.* The boundary of Γ moves towards the output at |ċ| + |ṙ|. |ċ| ≤ v_c
 (max_center_speed). d̂_j is 1-Lipschitz in c and in μ_j (a quantile of ‖c − O_j‖), and in σ
 |∂(d̂_j + r_o)/∂σ| ≤ (d̂_j + r_o + ‖c − μ_j‖)/σ ≤ (2(d̂_j + r_o) + σ z_ε)/σ (the scale coupling
-of :mod:`stt_drake.core.tube`, with ‖c − μ‖ ≤ d̂ + r_o + σ z_ε, z_ε the ε-quantile of a central
+of :mod:`stt_drake.core.fixed_rate`, with ‖c − μ‖ ≤ d̂ + r_o + σ z_ε, z_ε the ε-quantile of a central
 χ_n); the soft-min radius moves no faster than its fastest argument, and only arguments up
 to r_max + 40/ν matter. So the demand is 2·v_c + max_j w_j with the level-set speed
 w_j = v̄_j + s̄_j (2(r_max + 40/ν + r_o_j) + σ_max,j z_ε)/σ_min,j. Theorem 4.1 under the
@@ -28,7 +28,7 @@ saturated controller needs demand < available; otherwise the run warns (it does 
 refuse: the bound is worst case).
 
 *Update period.* The fixed-rate tube looks ahead two periods (module
-:mod:`stt_drake.core.tube`). A period h is admissible when, for every obstacle, the look-ahead
+:mod:`stt_drake.core.fixed_rate`). A period h is admissible when, for every obstacle, the look-ahead
 growth stays within the obstacle's own size — 2 v̄_j h ≤ r_o_j + r_min (the mean moves at
 most one safety radius) and 2 s̄_j h ≤ σ_min,j/2 (σ at most halves) — and the start is
 certified for the first period, Q^h_j(s) > ε_j at t = 0.
@@ -50,8 +50,8 @@ from stt_drake.config import (
 )
 from stt_drake.core.belief import obstacle_rate_bounds
 from stt_drake.core.control import ERROR_SATURATION, transformed_error
+from stt_drake.core.fixed_rate import BeliefRateBounds
 from stt_drake.core.probability import PRUNE_HEADROOM_NU, period_avoid_probability
-from stt_drake.core.tube import BeliefRateBounds
 from stt_drake.systems.plants.franka import fr3_lever_arm_bounds
 
 #: ρ₁ at the saturated error: the largest pull-back gain of stage 1 (≈ 21.4).

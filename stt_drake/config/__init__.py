@@ -2,7 +2,12 @@
 without building anything, and random obstacle fields. The complete loader, which adds the
 checks that need the built laws, is :func:`stt_drake.build.load_scenario`."""
 
-from stt_drake.config.load import read_scenario, read_scenario_text
+from stt_drake.config.load import (
+    complete_scenario,
+    parse_schema,
+    read_scenario,
+    read_scenario_text,
+)
 from stt_drake.config.random_field import expand_random_obstacles, has_random_field
 from stt_drake.config.schema import (
     PLANT_DIMENSION,
@@ -39,8 +44,10 @@ __all__ = [
     "Scenario",
     "ScenarioError",
     "TubeConfig",
+    "complete_scenario",
     "expand_random_obstacles",
     "has_random_field",
+    "parse_schema",
     "read_scenario",
     "read_scenario_text",
     "validate",

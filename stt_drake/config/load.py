@@ -2,6 +2,7 @@
 unknown keys and type errors reported with their full field path, the random field drawn,
 then :func:`stt_drake.config.validate.validate`."""
 
+import copy
 import typing
 from pathlib import Path
 from typing import Any
@@ -151,6 +152,13 @@ def read_scenario_text(
     text: str, default_name: str = "scenario", seed: int | None = None
 ) -> Scenario:
     """Parse scenario YAML text (see :func:`read_scenario`)."""
+    return complete_scenario(parse_schema(text, default_name), seed)
+
+
+def parse_schema(text: str, default_name: str = "scenario") -> Scenario:
+    """YAML text → the schema dataclasses, with unknown keys and type errors reported by
+    their field path; nothing drawn, nothing else checked (:func:`complete_scenario` does
+    that, once per seed: a campaign parses its file once and completes a copy per run)."""
     try:
         raw = yaml.load(text, Loader=_TaggedLoader)
     except yaml.YAMLError as error:
@@ -165,6 +173,14 @@ def read_scenario_text(
         raise ScenarioError(located or f"scenario: {error}") from None
     if not scenario.name:
         scenario.name = default_name
+    return scenario
+
+
+def complete_scenario(schema: Scenario, seed: int | None = None) -> Scenario:
+    """A copy of `schema` (from :func:`parse_schema`) with `seed` (when given) in place,
+    its random field drawn and every rule of :func:`stt_drake.config.validate.validate`
+    checked; `schema` itself is left as it was."""
+    scenario = copy.deepcopy(schema)
     if seed is not None:
         scenario.seed = seed
     validate_dimension(scenario)

@@ -21,7 +21,7 @@ numpy path is fastest with too; they are a few lines each.
 numba (rather than Cython/C++): it is a pinned dependency already, needs no compiler
 toolchain at install time, and with ``cache=True`` compiles once per machine into
 ``__pycache__`` (a few seconds on first use; importing :mod:`stt_drake` does not import
-this module — :func:`stt_drake.core.backend.kernels` loads it on first need).
+this module — :func:`stt_drake.core.backend.compiled` loads it on first need).
 ``STT_DRAKE_PURE_NUMPY=1`` (or :func:`stt_drake.core.backend.pure_numpy`) selects the reference
 path instead.
 
@@ -496,9 +496,10 @@ def _distance(point: np.ndarray, mean: np.ndarray, j: int) -> float:
 def _add_null_space(
     rate: np.ndarray, m: np.ndarray, goal: np.ndarray, circulation: np.ndarray, weight: float
 ) -> None:
-    """rate += weight·v, v ⟂ m with |v| = |m| (:func:`stt_drake.core.tube.null_space_direction`):
-    n = 2, m rotated by +90°; n ≥ 3, along ω × m for a chosen circulation axis ω (zero: not
-    chosen), else the part of the goal direction orthogonal to m, else of e_{n−1}, else of
+    """rate += weight·v, v ⟂ m with |v| = |m|
+    (:func:`stt_drake.core.circulation.null_space_direction`): n = 2, m rotated by +90°;
+    n ≥ 3, along ω × m for a chosen circulation axis ω (zero: not chosen), else the part of
+    the goal direction orthogonal to m, else of e_{n−1}, else of
     e_0 (the first whose orthogonal part is not degenerate)."""
     n = m.shape[0]
     if n == 1:
@@ -721,7 +722,7 @@ def _recovery_velocity(
 def _inflation(
     sigma: np.ndarray, mean_speed: np.ndarray, sigma_rate: np.ndarray, horizon: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(reach, spread) of :meth:`stt_drake.core.tube.BeliefRateBounds.inflation`."""
+    """(reach, spread) of :meth:`stt_drake.core.fixed_rate.BeliefRateBounds.inflation`."""
     reach = mean_speed * horizon
     spread = np.empty(sigma.shape[0])
     for j in range(sigma.shape[0]):
@@ -976,7 +977,7 @@ def _point_quantile_lower_bounds(
 def _end_radius_bound(
     start_radius: float, at_start: float, on_segment: float, length: float
 ) -> float:
-    """:func:`stt_drake.core.tube.end_radius_bound` for one obstacle."""
+    """:func:`stt_drake.core.fixed_rate.end_radius_bound` for one obstacle."""
     lipschitz = at_start - length
     if lipschitz >= on_segment:
         return lipschitz
@@ -1003,7 +1004,7 @@ def _cross_unit(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> float:
 def carry_circulation(
     axes: np.ndarray, center: np.ndarray, mean: np.ndarray, active: np.ndarray, goal: np.ndarray
 ) -> np.ndarray:
-    """:func:`stt_drake.core.tube.carry_circulation` (3D), one loop over the obstacles."""
+    """:func:`stt_drake.core.circulation.carry_circulation` (3D), one loop over the obstacles."""
     count = mean.shape[0]
     result = np.zeros((count, 3))
     unit_m = np.empty(3)

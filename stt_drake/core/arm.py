@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from stt_drake.core.control import BoxFunnel, FunnelController, box_funnel_stage
-from stt_drake.core.invariants import HOLDS_TOLERANCE
+from stt_drake.core.invariants import tube_in_target
 
 
 @dataclass(frozen=True)
@@ -265,7 +265,6 @@ def arm_metrics(
             log["radius"],
             target_set_radius,
             targets,
-            HOLDS_TOLERANCE,
         )
     metrics["limits"] = limit_report(
         log["t"], state[:, :joints], state[:, joints:], log["requested_torque"], limits
@@ -283,7 +282,6 @@ def segment_report(
     radius: np.ndarray,
     target_set_radius: float,
     targets: Sequence[np.ndarray],
-    tolerance: float,
 ) -> list[dict[str, Any]]:
     """Reach-and-stay per task segment, recomputed from the logged target η(t) and tube.
 
@@ -292,7 +290,7 @@ def segment_report(
     completed when that time exists. Targets that never became active are listed as not
     completed, so the list always has one entry per target in `targets`.
     """
-    inside = np.linalg.norm(center - task_target, axis=1) + radius <= target_set_radius + tolerance
+    inside = tube_in_target(center, radius, task_target, target_set_radius)
     change = np.flatnonzero(np.any(np.diff(task_target, axis=0) != 0.0, axis=1)) + 1
     starts = np.concatenate([[0], change])
     ends = np.concatenate([change, [len(t)]])

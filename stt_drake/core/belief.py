@@ -16,7 +16,7 @@ from typing import Protocol
 
 import numpy as np
 
-from stt_drake.core.motion import Motion, SigmaSchedule
+from stt_drake.core.motion import Motion, MotionTable, SigmaSchedule
 
 #: Number of scalars after the mean in one obstacle's record: sigma, radius, epsilon, p_d.
 _SCALAR_FIELDS = 4
@@ -98,7 +98,7 @@ class ObstacleModel(Protocol):
 def obstacle_belief(obstacles: Sequence[ObstacleModel], dimension: int, t: float) -> ObstacleBelief:
     """The belief of every obstacle in `obstacles` at time t."""
     return ObstacleBelief(
-        mean=np.array([o.motion.position(t) for o in obstacles]).reshape(len(obstacles), dimension),
+        mean=MotionTable([o.motion for o in obstacles], dimension).positions(t),
         sigma=np.array([obstacle_sigma(o, t) for o in obstacles]),
         radius=np.array([o.radius for o in obstacles]),
         epsilon=np.array([o.epsilon for o in obstacles]),

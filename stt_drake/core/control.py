@@ -138,10 +138,10 @@ class FunnelController:
         """Only the control u, from stacked states and the `tube` port vector [c, r]: the
         Drake system's hot path (no ControlEvaluation built). Same value as
         ``evaluate(t, states, tube[:-1], tube[-1]).control``."""
-        kernels = backend.kernels()
+        kernel = backend.compiled("funnel_control_packed")
         n = len(tube) - 1
-        if kernels is not None and len(states) == self.stages * n:
-            control, _errors, finite = kernels.funnel_control_packed(
+        if kernel is not None and len(states) == self.stages * n:
+            control, _errors, finite = kernel(
                 float(t),
                 np.asarray(states, dtype=float),
                 np.asarray(tube, dtype=float),
@@ -161,13 +161,13 @@ class FunnelController:
         path is selected, see :mod:`stt_drake.core.backend`); non-finite inputs go on to the
         reference path below, which names them in its ValueError.
         """
-        kernels = backend.kernels()
-        if kernels is not None:
+        kernel = backend.compiled("funnel_control")
+        if kernel is not None:
             center = np.asarray(center, dtype=float)
             flat = np.asarray(states, dtype=float).reshape(-1)
             n = center.shape[0]
             if flat.shape[0] == self.stages * n:
-                control, errors, finite = kernels.funnel_control(
+                control, errors, finite = kernel(
                     float(t), flat, center, float(radius), *self._arrays_for(n), ERROR_SATURATION
                 )
                 if finite:

@@ -25,7 +25,7 @@ import numpy as np
 
 from stt_drake.core import backend
 from stt_drake.core.belief import ObstacleBelief, record_size
-from stt_drake.core.probability import COMPILED_DIMENSIONS, avoid_probability
+from stt_drake.core.probability import avoid_probability
 
 INVARIANT_NAMES = (
     "output_in_tube",
@@ -56,9 +56,9 @@ def evaluate_invariants(
     One call of the compiled :func:`stt_drake.core._kernels.invariant_margins` for n ≤ 3 (unless
     the numpy path is selected, see :mod:`stt_drake.core.backend`), else numpy.
     """
-    kernels = backend.kernels()
-    if kernels is not None and belief.mean.shape[-1] in COMPILED_DIMENSIONS:
-        margins, output_q, tube_q = kernels.invariant_margins(
+    kernel = backend.compiled("invariant_margins", belief.mean.shape[-1])
+    if kernel is not None:
+        margins, output_q, tube_q = kernel(
             np.asarray(output, dtype=float),
             np.asarray(center, dtype=float),
             float(radius),
@@ -93,16 +93,13 @@ def evaluate_invariants_packed(
     monitor's hot path)."""
     output = np.asarray(output, dtype=float)
     dimension = output.shape[0]
-    kernels = backend.kernels()
-    if (
-        kernels is None
-        or dimension not in COMPILED_DIMENSIONS
-        or len(belief_vector) % record_size(dimension)  # from_vector names the problem
-    ):
+    kernel = backend.compiled("invariant_margins_packed", dimension)
+    # A malformed belief vector takes the numpy path: from_vector names the problem.
+    if kernel is None or len(belief_vector) % record_size(dimension):
         belief = ObstacleBelief.from_vector(belief_vector, dimension)
         return evaluate_invariants(output, tube[:-1], tube[-1], belief, r_min)
     return InvariantSample(
-        *kernels.invariant_margins_packed(
+        *kernel(
             output, np.asarray(tube, dtype=float), np.asarray(belief_vector, dtype=float), r_min
         )
     )
@@ -190,6 +187,22 @@ class ReachStory:
         }
 
 
+def tube_in_target(
+    center: np.ndarray, radius: np.ndarray, target: np.ndarray, target_set_radius: float
+) -> np.ndarray:
+    """Γ = B(c, r) ⊂ T = B(η, R_T): ‖c − η‖ + r ≤ R_T (up to HOLDS_TOLERANCE) and r > 0,
+    per sample (rows of `center`, entries of `radius`; `target` one η or one per sample).
+
+    A non-positive radius (an honest violation during recovery) is no tube at all: it
+    would meet ‖c − η‖ + r ≤ R_T trivially."""
+    radius = np.asarray(radius, dtype=float)
+    gap = (
+        np.linalg.norm(np.asarray(center, dtype=float) - np.asarray(target, dtype=float), axis=-1)
+        + radius
+    )
+    return (gap <= target_set_radius + HOLDS_TOLERANCE) & (radius > 0.0)
+
+
 def reach_story(
     t: np.ndarray,
     center: np.ndarray,
@@ -213,12 +226,7 @@ def reach_story(
     """
     t = np.asarray(t, dtype=float)
     target = np.asarray(target, dtype=float)
-    gap = np.linalg.norm(np.asarray(center, dtype=float) - target, axis=-1) + np.asarray(
-        radius, dtype=float
-    )
-    # A non-positive radius (an honest violation during recovery) is no tube at all: it
-    # would meet ‖c − η‖ + r ≤ R_T trivially.
-    inside = (gap <= target_set_radius + HOLDS_TOLERANCE) & (np.asarray(radius) > 0.0)
+    inside = tube_in_target(center, radius, target, target_set_radius)
     previous = np.zeros_like(inside)  # inside at the sample before (none before the first)
     previous[1:] = inside[:-1]
     entries = t[inside & ~previous].tolist()

@@ -23,6 +23,8 @@ Two implementations (selected by :mod:`stt_drake.core.backend`):
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from scipy import special
 
@@ -50,9 +52,6 @@ PRUNE_HEADROOM_NU = 40.0
 #: Φ⁻¹(2⁻⁵⁴): below this b − a the noncentral chi survival function is 1 in double precision.
 _SF_IS_ONE_BELOW = float(special.ndtri(2.0**-54))
 
-#: Output dimensions the compiled kernels cover (others always use the numpy path).
-COMPILED_DIMENSIONS = (1, 2, 3)
-
 
 def _normal_pdf(x: np.ndarray) -> np.ndarray:
     return _INV_SQRT_2PI * np.exp(-0.5 * x * x)
@@ -64,14 +63,14 @@ def noncentral_chi_sf(threshold: np.ndarray, offset: np.ndarray, dimension: int)
     This is the survival function of the noncentral chi distribution, i.e. of χ'²_n at
     threshold² with noncentrality offset².
     """
-    kernels = backend.kernels()
-    if kernels is not None and dimension in COMPILED_DIMENSIONS:
-        return _elementwise(kernels.chi_sf_array, threshold, offset, dimension)
-    return _numpy_chi_sf(threshold, offset, dimension)
+    kernel = backend.compiled("chi_sf_array", dimension)
+    if kernel is None:
+        return _numpy_chi_sf(threshold, offset, dimension)
+    return _elementwise(kernel, threshold, offset, dimension)
 
 
 def _elementwise(
-    kernel: object, first: np.ndarray, second: np.ndarray, dimension: int
+    kernel: Callable[..., np.ndarray], first: np.ndarray, second: np.ndarray, dimension: int
 ) -> np.ndarray:
     """Apply a compiled (1D, 1D, n) → 1D kernel to two arrays broadcast together."""
     x, y = np.broadcast_arrays(np.asarray(first, dtype=float), np.asarray(second, dtype=float))
@@ -108,10 +107,10 @@ def _numpy_chi_sf(threshold: np.ndarray, offset: np.ndarray, dimension: int) -> 
 
 def noncentral_chi_isf(probability: np.ndarray, offset: np.ndarray, dimension: int) -> np.ndarray:
     """The s ≥ 0 with P(‖Z‖ ≥ s) = probability, for Z ~ N(offset·e, I_dimension)."""
-    kernels = backend.kernels()
-    if kernels is not None and dimension in COMPILED_DIMENSIONS:
-        return _elementwise(kernels.chi_isf_array, probability, offset, dimension)
-    return _numpy_chi_isf(probability, offset, dimension)
+    kernel = backend.compiled("chi_isf_array", dimension)
+    if kernel is None:
+        return _numpy_chi_isf(probability, offset, dimension)
+    return _elementwise(kernel, probability, offset, dimension)
 
 
 def _numpy_chi_isf(probability: np.ndarray, offset: np.ndarray, dimension: int) -> np.ndarray:
@@ -214,7 +213,7 @@ def period_avoid_probability(
     """A lower bound of P(‖point − O_j(t)‖ ≥ radius_j) over every belief reachable within a
     horizon τ from N(mean_j, sigma_j² I): means within `reach` Δ_j = v̄_j τ of mean_j and
     standard deviations in [σ_j − s̄_j τ, σ_j + s̄_j τ], with spread γ_j = σ_j/(σ_j − s̄_j τ) − 1
-    (derivation: :mod:`stt_drake.core.tube`, "Discrete-time guarantee").
+    (derivation: :mod:`stt_drake.core.fixed_rate`, "Discrete-time guarantee").
 
     With a = ‖point − mean_j‖ it is the survival function at the offset max(a − Δ_j, 0) and
     the radius radius_j + γ_j (a + Δ_j + radius_j); Δ = γ = 0 gives :func:`avoid_probability`.
@@ -283,8 +282,8 @@ def segment_quantile_lower_bound(
     every belief reachable within the horizon of (reach, spread): the largest r with
     P(‖x − O_j(t)‖ ≥ r_o_j + r) ≥ ε_j for all those x and beliefs.
 
-    By the coupling of :mod:`stt_drake.core.tube` the collision event at radius R is inside the
-    event at radius R(1 + γ) + γ(a_max + Δ) + Δ-shifted offset, so any R with
+    By the coupling of :mod:`stt_drake.core.fixed_rate` the collision event at radius R is
+    inside the event at radius R(1 + γ) + γ(a_max + Δ) + Δ-shifted offset, so any R with
     R(1 + γ) + γ(a_max + Δ) ≤ σ·s_ε(max(a_min − Δ, 0)/σ) is safe, s_ε the noncentral-χ upper
     ε quantile: D_j = (σ s_ε − γ(a_max + Δ))/(1 + γ) − r_o_j. It exceeds r_min exactly when
     :func:`segment_avoid_lower_bound` (with r_o + r_min) exceeds ε_j."""

@@ -21,66 +21,10 @@ direction in which those q_j increase fastest (∇_c q_j is along c − μ_j for
 beliefs), until every q_j > ε_j again. Nothing is floored, so the centre never jumps; the
 invariant monitor reports the violated margins honestly.
 
-In 3D, v_j ⟂ m_j cannot be a continuous function of m_j alone on the whole sphere (the
-hairy-ball theorem), which is why the goal-based choice flipped across the
-obstacle–target line. The law therefore takes a circulation axis ω_j per obstacle, chosen
-once when obstacle j activates (ω = m̂ × (η − c), so v_j starts along the goal) and carried
-along while it stays active (:func:`carry_circulation`): v_j = |m_j|·(ω_j × m̂_j)/|ω_j × m̂_j|.
-
-Discrete-time guarantee (the fixed-rate tube)
----------------------------------------------
-A real-time tube updates every h seconds with the belief sampled at the update t_k, and
-the obstacles keep moving in between. Suppose each belief moves at bounded rates,
-‖μ̇_j‖ ≤ v̄_j and |σ̇_j| ≤ s̄_j (from the motion model, a tracker's velocity estimate or a
-declared bound). Over a horizon τ every belief N(μ_j(t), σ_j(t)²I), t ∈ [t_k, t_k + τ], has
-‖μ_j(t) − μ_j(t_k)‖ ≤ Δ_j = v̄_j τ and σ_j(t) ≥ σ_lo = σ_j(t_k) − s̄_j τ. Couple O(t) =
-μ(t) + σ(t)Z with O_k = μ_k + σ_k Z (same Z, σ_k = σ_j(t_k)). For a point x, radius R and
-d = x − μ(t):
-
-1. Scale: ‖d − σ(t)Z‖ < R implies ‖d − σ_k Z‖ < R + γ(‖d‖ + R) with γ = σ_k/σ_lo − 1 (in
-   units of σ the collision ball B(d/σ, R/σ) is contained in B(d/σ_k, (R + γ(‖d‖ + R))/σ_k)
-   both when σ(t) < σ_k and when σ(t) ≥ σ_k, since 1 − σ_k/σ(t) ≤ γ).
-2. Translate: ‖d‖ ≤ a + Δ with a = ‖x − μ_k‖, and the survival function of ‖x − μ_k − σ_kZ‖
-   only falls when the centre offset falls, so shifting the mean by at most Δ costs at most
-   Δ of offset.
-
-Hence q_j(x, t) ≥ Q_j^τ(x) := P(‖Z'‖ ≥ (R + γ(a + Δ + R))/σ_k), Z' ~ N(max(a − Δ, 0)/σ_k·e, I),
-for every t in the horizon (:func:`stt_drake.core.probability.period_avoid_probability`; a
-Monte Carlo test samples beliefs inside the bounds). On a segment, take the offset at the
-closest point and the radius at the farthest (:func:`stt_drake.core.probability.
-segment_avoid_lower_bound`).
-
-The update (:meth:`TubeLaw.advance`) at t_k, from the centre c_k reached at t_k:
-
-* it integrates the law with the look-ahead lower bound Q^{2h} in place of q_j, in
-  sub-steps that keep every positive gap Q^{2h}_j − ε_j at least half of what it was
-  (fraction to the boundary), at |ċ| ≤ v_c, giving c_{k+1};
-* it certifies the straight segment [c_k, c_{k+1}] with Q^h: every obstacle whose
-  Q^h_j(c_k) > ε_j must keep the segment's lower bound > ε_j, else c_{k+1} is pulled back
-  towards c_k (c_k itself passes);
-* the tube output moves linearly from c_k to c_{k+1} over [t_k, t_k + h] (continuous,
-  |ċ| ≤ v_c), so q_j(c(t), t) > ε_j at every instant of the period for every certified j.
-
-Induction: Q^{2h} from the belief at t_k bounds every belief up to t_k + 2h, which contains
-the horizon h after t_{k+1}, so Q^{2h}_{k}(c_{k+1}) > ε_j implies Q^h_{k+1}(c_{k+1}) > ε_j
-for a translating belief (the composition of the two shifts is exact; with σ changing it
-holds to first order in s̄h/σ, and any shortfall is flagged as a recovery, never hidden).
-So without belief jumps every period is certified. An obstacle whose Q^h_j(c_k) ≤ ε_j
-(its belief jumped, or moved faster than its bound) is *recovering* for that period: the
-update escapes along the recovery direction at v_c, and the run records it.
-
-The radius over a period. The same coupling bounds the quantile distance d̂_j from below
-over the period: D0_j at c_k and D_j over the whole segment
-(:func:`stt_drake.core.probability.segment_quantile_lower_bound`). The radius moves linearly
-from r_k ≤ min_j D0_j to r_{k+1}, and d̂_j is 1-Lipschitz in the point, so at the fraction
-s of the period d̂_j ≥ max(D0_j − sℓ, D_j) with ℓ = ‖c_{k+1} − c_k‖. A linear r(s) stays
-below that bound for the largest r_{k+1} of :func:`end_radius_bound`; r_{k+1} is the
-soft-min of those per-obstacle limits and of the look-ahead bound at c_{k+1}, and c_{k+1}
-is also pulled back until every certified obstacle's limit is ≥ r_min (so r > 0 by the
-choice of ν, claim iii). Hence r(t) ≤ d̂_j(c(t), t) at every instant (the ball is
-certified, claim ii), and the radius can fall as fast as the centre approaches an obstacle
-(the first version required D_j ≥ r_k, which let r fall only by the soft-min slack per
-period and stalled the centre in front of thin barriers at 10-20 Hz).
+The 3D null-space direction v_j follows a circulation axis per obstacle
+(:mod:`stt_drake.core.circulation`). The fixed-rate (real-time) tube and its discrete-time
+guarantee are derived in :mod:`stt_drake.core.fixed_rate`; :meth:`TubeLaw.advance` is the
+update it describes.
 """
 
 from __future__ import annotations
@@ -93,8 +37,9 @@ import numpy as np
 
 from stt_drake.core import backend
 from stt_drake.core.belief import ObstacleBelief, record_size
+from stt_drake.core.circulation import null_space_direction
+from stt_drake.core.fixed_rate import BeliefRateBounds, FixedRateUpdate, end_radius_bound
 from stt_drake.core.probability import (
-    COMPILED_DIMENSIONS,
     PRUNE_HEADROOM_NU,
     avoid_probability,
     period_avoid_probability,
@@ -155,83 +100,6 @@ def attraction_reach_time(error: np.ndarray, k1: float) -> float:
     return float(np.max(3.0 * np.abs(error) ** (2.0 / 3.0) / (2.0 * k1)))
 
 
-def null_space_direction(
-    m: np.ndarray, goal_direction: np.ndarray, circulation: np.ndarray | None = None
-) -> np.ndarray:
-    """v_j ⟂ m_j with |v_j| = |m_j| (rows are obstacles).
-
-    n = 2: m rotated by +90°. n = 3 with a circulation axis ω_j (row of `circulation`, zero
-    = none chosen): along ω_j × m_j. Otherwise (n ≥ 3): the part of the goal direction
-    orthogonal to m, falling back to a fixed axis (e_z, then e_x) where the goal direction
-    is parallel to m. n = 1: zero (R¹ has no orthogonal direction).
-    """
-    count, dimension = m.shape
-    if dimension == 1:
-        return np.zeros_like(m)
-    if dimension == 2:
-        return np.column_stack([-m[:, 1], m[:, 0]])
-    norm_m = np.linalg.norm(m, axis=1, keepdims=True)
-    unit_m = m / np.where(norm_m > 0.0, norm_m, 1.0)
-    direction = np.empty_like(m)
-    chosen = np.zeros(count, dtype=bool)
-    if dimension == 3 and circulation is not None and len(circulation) == count:
-        turned = np.cross(circulation, unit_m)
-        length = np.linalg.norm(turned, axis=1)
-        chosen = length > CIRCULATION_MIN_SINE
-        direction[chosen] = turned[chosen] / length[chosen, None]
-    candidates = [np.broadcast_to(goal_direction, m.shape)]
-    for axis in (dimension - 1, 0):
-        candidates.append(np.broadcast_to(np.eye(dimension)[axis], m.shape))
-    for candidate in candidates:
-        orthogonal = candidate - np.sum(candidate * unit_m, axis=1, keepdims=True) * unit_m
-        length = np.linalg.norm(orthogonal, axis=1)
-        usable = ~chosen & (length > 1e-6 * np.maximum(np.linalg.norm(candidate, axis=1), 1e-300))
-        direction[usable] = orthogonal[usable] / length[usable, None]
-        chosen |= usable
-    return direction * norm_m
-
-
-#: A circulation axis ω is used while |ω × m̂| exceeds this (same as the compiled kernel).
-CIRCULATION_MIN_SINE = 1e-3
-
-
-def carry_circulation(
-    axes: np.ndarray, center: np.ndarray, mean: np.ndarray, active: np.ndarray, goal: np.ndarray
-) -> np.ndarray:
-    """The circulation axes ω_j (rows, 3D) after one step: zero where obstacle j is not
-    active (θ_j = 0); chosen as m̂_j × (η − c) where it has just activated (falling back to
-    m̂ × e_z, then m̂ × e_x, when the goal lies along m̂); otherwise carried along, i.e. made
-    orthogonal to the current m̂_j again and renormalised (re-chosen if that degenerates).
-    m̂_j = (c − μ_j)/‖c − μ_j‖ has the direction of m_j (q_j > ε_j while it is active).
-
-    One call of the compiled :func:`stt_drake.core._kernels.carry_circulation` unless the numpy
-    path is selected (the code below is its reference)."""
-    kernels = backend.kernels()
-    if kernels is not None:
-        return kernels.carry_circulation(
-            np.asarray(axes, dtype=float),
-            np.asarray(center, dtype=float),
-            np.asarray(mean, dtype=float),
-            np.asarray(active, dtype=bool),
-            np.asarray(goal, dtype=float),
-        )
-    offset = np.asarray(center, dtype=float) - np.asarray(mean, dtype=float)
-    unit_m = offset / np.maximum(np.linalg.norm(offset, axis=1, keepdims=True), 1e-300)
-    carried = axes - np.sum(axes * unit_m, axis=1, keepdims=True) * unit_m
-    length = np.linalg.norm(carried, axis=1)
-    result = np.zeros_like(axes)
-    keep = active & (length > 1e-6)
-    result[keep] = carried[keep] / length[keep, None]
-    fresh = active & ~keep
-    for candidate in (goal, np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])):
-        axis = np.cross(unit_m, np.broadcast_to(candidate, unit_m.shape))
-        length = np.linalg.norm(axis, axis=1)
-        usable = fresh & (length > 1e-6 * max(float(np.linalg.norm(candidate)), 1e-300))
-        result[usable] = axis[usable] / length[usable, None]
-        fresh &= ~usable
-    return result
-
-
 @dataclass(frozen=True)
 class TubeEvaluation:
     """Everything the tube law gives at one instant.
@@ -252,81 +120,6 @@ class TubeEvaluation:
     avoid_probability: np.ndarray
     quantile_distance: np.ndarray
     theta: np.ndarray
-
-
-@dataclass(frozen=True)
-class BeliefRateBounds:
-    """How fast each obstacle's belief may change: sup ‖μ̇_j‖ and sup |σ̇_j| (m/s).
-
-    Steps (belief jumps) are outside these bounds by definition: the tube recovers from them.
-    """
-
-    mean_speed: np.ndarray
-    sigma_rate: np.ndarray
-
-    @classmethod
-    def still(cls, count: int) -> BeliefRateBounds:
-        """Bounds of a belief that does not move (every rate 0)."""
-        return cls(np.zeros(count), np.zeros(count))
-
-    def inflation(self, sigma: np.ndarray, horizon: float) -> tuple[np.ndarray, np.ndarray]:
-        """(Δ_j, γ_j) over `horizon` seconds from standard deviations `sigma`: the reach
-        v̄_j·τ of the mean and the spread σ_j/(σ_j − s̄_j τ) − 1 (infinite once σ could
-        reach 0); see the module docstring, "Discrete-time guarantee"."""
-        sigma = np.asarray(sigma, dtype=float)
-        low = sigma - self.sigma_rate * horizon
-        positive = low > 0.0
-        spread = np.full(sigma.shape, np.inf)
-        spread[positive] = sigma[positive] / low[positive] - 1.0
-        return self.mean_speed * horizon, spread
-
-
-def end_radius_bound(
-    start_radius: float, at_start: np.ndarray, on_segment: np.ndarray, length: float
-) -> np.ndarray:
-    """Per obstacle, the largest end radius r_{k+1} for which the linearly interpolated
-    radius r(s) = r_k + s(r_{k+1} − r_k), s ∈ [0, 1], stays below the quantile distance
-    d̂_j along the period (module docstring, "The radius over a period").
-
-    With D0 = `at_start` (the bound at c_k over the period, ≥ r_k), D = `on_segment` (over
-    the whole segment) and ℓ = `length` = ‖c_{k+1} − c_k‖, d̂_j at the point s is at least
-    max(D0 − sℓ, D) (d̂_j is 1-Lipschitz in the point). A linear r(s) from r_k ≤ D0 stays
-    below that: up to D0 − ℓ when D0 − ℓ ≥ D; up to D when r_k ≤ D; otherwise only if it
-    has fallen to D where the two lines cross, s* = (D0 − D)/ℓ, i.e. up to
-    r_k − (r_k − D)·ℓ/(D0 − D).
-    """
-    at_start = np.asarray(at_start, dtype=float)
-    on_segment = np.asarray(on_segment, dtype=float)
-    lipschitz = at_start - length
-    with np.errstate(divide="ignore", invalid="ignore"):
-        falling = start_radius - (start_radius - on_segment) * length / (at_start - on_segment)
-    return np.where(
-        lipschitz >= on_segment,
-        lipschitz,
-        np.where(start_radius <= on_segment, on_segment, falling),
-    )
-
-
-@dataclass(frozen=True)
-class FixedRateUpdate:
-    """One fixed-rate update: where the centre goes, and what is certified.
-
-    Attributes:
-        center: (n,) c_{k+1}, reached at the end of the period (the output moves linearly).
-        certified: (m,) True where q_j(c(t), t) > ε_j is proven over the whole period;
-            False where obstacle j is recovering (its belief left its rate bounds).
-        substeps: accepted sub-steps of the law.
-        start_radius: r at the start of the period: the given radius, unless the belief
-            left its bounds (or this is the first update), when it drops to what the period
-            certifies.
-        end_radius: r at the end of the period (linear in between).
-    """
-
-    center: np.ndarray
-    certified: np.ndarray
-    substeps: int
-    start_radius: float
-    end_radius: float
 
 
 @dataclass(frozen=True)
@@ -437,13 +230,13 @@ class TubeLaw:
         circulation: np.ndarray | None,
         inflation: tuple[np.ndarray, np.ndarray] | None,
     ) -> TubeEvaluation:
-        kernels = backend.kernels()
-        if kernels is None or belief.mean.shape[-1] not in COMPILED_DIMENSIONS:
+        kernel = backend.compiled("tube_step", belief.mean.shape[-1])
+        if kernel is None:
             return self._evaluate_numpy(center, belief, mode, circulation, inflation)
         k2, k3, constants = self._gains_for(belief.mean.shape[0])
         reach, spread, axes = _kernel_extras(belief.mean.shape, circulation, inflation)
         return TubeEvaluation(
-            *kernels.tube_step(
+            *kernel(
                 np.asarray(center, dtype=float),
                 belief.mean,
                 belief.sigma,
@@ -468,21 +261,18 @@ class TubeLaw:
     ) -> TubeEvaluation:
         """:meth:`evaluate` on a belief port vector (layout of :mod:`stt_drake.core.belief`),
         without building the :class:`ObstacleBelief` (the Drake system's hot path)."""
-        kernels = backend.kernels()
         dimension = len(center)
         mode = "pruned" if prune else "exact"
-        if (
-            kernels is None
-            or dimension not in COMPILED_DIMENSIONS
-            or len(belief_vector) % record_size(dimension)  # from_vector names the problem
-        ):
+        kernel = backend.compiled("tube_step_packed", dimension)
+        # A malformed belief vector takes the numpy path: from_vector names the problem.
+        if kernel is None or len(belief_vector) % record_size(dimension):
             belief = ObstacleBelief.from_vector(belief_vector, dimension)
             return self._evaluate_numpy(center, belief, mode, circulation, None)
         count = len(belief_vector) // record_size(dimension)
         k2, k3, constants = self._gains_for(count)
         reach, spread, axes = _kernel_extras((count, dimension), circulation, None)
         return TubeEvaluation(
-            *kernels.tube_step_packed(
+            *kernel(
                 np.asarray(center, dtype=float),
                 np.asarray(belief_vector, dtype=float),
                 k2,
@@ -575,7 +365,7 @@ class TubeLaw:
         max_attempts: int = 200,
     ) -> FixedRateUpdate:
         """Fixed-rate (real-time) update over one period h = `duration` with the belief
-        sampled at its start (module docstring, "Discrete-time guarantee").
+        sampled at its start (:mod:`stt_drake.core.fixed_rate`, "Discrete-time guarantee").
 
         The law runs with the look-ahead bound Q^{2h} (from `bounds`; None = a belief that
         does not move) in sub-steps at |ċ| ≤ v_c: the attraction's exact flow when no
@@ -588,7 +378,7 @@ class TubeLaw:
         period; NaN: none yet) is at least r_min for every certified obstacle. The radius
         moves linearly over the period from its start value to the soft-min of those limits
         and the look-ahead's distance bounds at the new centre, so the whole ball is
-        certified too (module docstring, "The radius over a period").
+        certified too (:mod:`stt_drake.core.fixed_rate`, "The radius over a period").
 
         One call of the compiled :func:`stt_drake.core._kernels.tube_advance` for n ≤ 3 (unless
         the numpy path is selected); the code below is its reference.
@@ -600,11 +390,11 @@ class TubeLaw:
         center = np.array(center, dtype=float)
         count = belief.count
         bounds = bounds if bounds is not None else BeliefRateBounds.still(count)
-        kernels = backend.kernels()
-        if kernels is not None and belief.dimension in COMPILED_DIMENSIONS:
+        kernel = backend.compiled("tube_advance", belief.dimension)
+        if kernel is not None:
             k2, k3, constants = self._gains_for(count)
             _reach, _spread, axes = _kernel_extras(belief.mean.shape, circulation, None)
-            position, certified, accepted, start_radius, end_radius = kernels.tube_advance(
+            position, certified, accepted, start_radius, end_radius = kernel(
                 center,
                 belief.mean,
                 belief.sigma,

@@ -15,7 +15,7 @@ from stt_drake.core.belief import (
     obstacle_sigma,
     record_size,
 )
-from stt_drake.core.motion import ConstantVelocity, Oscillation
+from stt_drake.core.motion import MotionTable
 
 
 class ObstacleBeliefSource(LeafSystem):
@@ -26,11 +26,9 @@ class ObstacleBeliefSource(LeafSystem):
     by anything that writes the same port.
 
     The obstacles are read once, at construction: the constant fields are packed into a
-    template, and oscillating and constant-velocity means are evaluated for all obstacles
-    of a kind in one numpy expression (the same arithmetic as
-    :meth:`stt_drake.core.motion.Oscillation.position` and
-    :meth:`stt_drake.core.motion.ConstantVelocity.position`); other motion models and σ
-    schedules are evaluated per obstacle.
+    template and the motion models into a :class:`stt_drake.core.motion.MotionTable`
+    (oscillating and constant-velocity means in one expression per kind); σ schedules are
+    evaluated per obstacle.
     """
 
     def __init__(self, obstacles: Sequence[ObstacleModel], dimension: int) -> None:
@@ -41,28 +39,7 @@ class ObstacleBeliefSource(LeafSystem):
         self._template = obstacle_belief(self._obstacles, dimension, 0.0).to_vector()
         self._template = self._template.reshape(count, record_size(dimension))
 
-        def kind(motion_type: type) -> list[int]:
-            return [j for j, o in enumerate(self._obstacles) if type(o.motion) is motion_type]
-
-        oscillating, moving = kind(Oscillation), kind(ConstantVelocity)
-        self._oscillating = np.array(oscillating, dtype=int)
-        motions = [self._obstacles[j].motion for j in oscillating]
-        shape = (len(motions), dimension)
-        self._center = np.array([m.center for m in motions], dtype=float).reshape(shape)
-        self._amplitude = np.array([m.amplitude for m in motions], dtype=float).reshape(shape)
-        self._angular_frequency = np.array(
-            [2.0 * np.pi * m.frequency_hz for m in motions], dtype=float
-        )
-        self._phase = np.array(
-            [m.phase if m.phase else [0.0] * dimension for m in motions], dtype=float
-        ).reshape(shape)
-        self._moving = np.array(moving, dtype=int)
-        motions = [self._obstacles[j].motion for j in moving]
-        shape = (len(motions), dimension)
-        self._start = np.array([m.start for m in motions], dtype=float).reshape(shape)
-        self._velocity = np.array([m.velocity for m in motions], dtype=float).reshape(shape)
-        vectorised = set(oscillating) | set(moving)
-        self._other = [j for j in range(count) if j not in vectorised]
+        self._motions = MotionTable([o.motion for o in self._obstacles], dimension)
         self._scheduled = [j for j, o in enumerate(self._obstacles) if o.sigma_schedule is not None]
         self.DeclareVectorOutputPort(
             "obstacle_belief",
@@ -78,31 +55,27 @@ class ObstacleBeliefSource(LeafSystem):
     def belief_vector(self, t: float) -> np.ndarray:
         """The port value at time t (equal to ``obstacle_belief(obstacles, n, t).to_vector()``)."""
         n = self._dimension
-        kernels = backend.kernels()
-        if kernels is not None:
-            vector = kernels.belief_table(
+        kernel = backend.compiled("belief_table")
+        if kernel is not None:
+            motions = self._motions
+            vector = kernel(
                 self._template,
                 float(t),
-                self._oscillating,
-                self._center,
-                self._amplitude,
-                self._angular_frequency,
-                self._phase,
-                self._moving,
-                self._start,
-                self._velocity,
+                motions.oscillating,
+                motions.center,
+                motions.amplitude,
+                motions.angular_frequency,
+                motions.phase,
+                motions.moving,
+                motions.start,
+                motions.velocity,
             )
             table = vector.reshape(-1, record_size(n))
+            self._motions.fill_others(table[:, :n], t)
         else:
             table = self._template.copy()
             vector = table.reshape(-1)
-            if self._oscillating.size:
-                angle = self._angular_frequency[:, None] * t + self._phase
-                table[self._oscillating, :n] = self._center + self._amplitude * np.sin(angle)
-            if self._moving.size:
-                table[self._moving, :n] = self._start + t * self._velocity
-        for j in self._other:
-            table[j, :n] = self._obstacles[j].motion.position(t)
+            table[:, :n] = self._motions.positions(t)
         for j in self._scheduled:
             table[j, n] = obstacle_sigma(self._obstacles[j], t)
         return vector

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 import numpy as np
 from pydrake.systems.framework import BasicVector, Context, DiscreteValues, LeafSystem
 
-from stt_drake.core.invariants import HOLDS_TOLERANCE
+from stt_drake.core.invariants import tube_in_target
 
 
 class TargetSequencer(LeafSystem):
@@ -64,9 +64,8 @@ class TargetSequencer(LeafSystem):
         k, hold_start = context.get_discrete_state(self._state).CopyToVector()
         k = int(k)
         tube = self._tube.Eval(context)
-        gap = np.linalg.norm(tube[:-1] - self._targets[k]) + tube[-1] - self._radius
         t = context.get_time()
-        if gap > HOLDS_TOLERANCE:
+        if not tube_in_target(tube[:-1], tube[-1], self._targets[k], self._radius):
             hold_start = np.nan
         elif np.isnan(hold_start):
             hold_start = t

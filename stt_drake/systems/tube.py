@@ -18,7 +18,9 @@ from pydrake.systems.framework import (
 )
 
 from stt_drake.core.belief import ObstacleBelief, belief_size
-from stt_drake.core.tube import BeliefRateBounds, TubeEvaluation, TubeLaw, carry_circulation
+from stt_drake.core.circulation import carry_circulation
+from stt_drake.core.fixed_rate import BeliefRateBounds
+from stt_drake.core.tube import TubeEvaluation, TubeLaw
 
 
 class SpatiotemporalTube(LeafSystem):

@@ -1,0 +1,130 @@
+"""AddStt: the STT loop's systems added to a DiagramBuilder and connected, Drake style (like
+``AddMultibodyPlantSceneGraph``).
+
+The loop is belief → tube → controller, with the invariant monitor reading the belief,
+the tube and the plant's output (DESIGN.md diagram). The caller owns the plant: it
+connects the returned `plant_state` input and `control` output, and the plant's output
+into `output` (the monitor's y).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.systems.framework import DiagramBuilder, InputPort, LeafSystem, OutputPort
+
+from stt_drake.core.belief import ObstacleModel
+from stt_drake.core.control import FunnelController
+from stt_drake.core.tube import BeliefRateBounds, TubeLaw
+from stt_drake.systems.belief_source import ObstacleBeliefSource
+from stt_drake.systems.controller import STTController
+from stt_drake.systems.monitor import InvariantMonitor
+from stt_drake.systems.tube import SpatiotemporalTube
+
+
+@dataclass
+class SttHandles:
+    """The systems AddStt added (or was given) and the ports a caller connects.
+
+    `belief_source` is None when the belief came in as a port. `plant_state` (the
+    controller's input) and `control` (its output) connect to the plant; `output` is the
+    monitor's input for the plant output y; `tube` is the tube's [c, r] output and `belief`
+    the belief port the loop reads."""
+
+    belief_source: ObstacleBeliefSource | None
+    tube_system: SpatiotemporalTube
+    controller: LeafSystem
+    monitor: InvariantMonitor
+    belief: OutputPort
+    tube: OutputPort
+    plant_state: InputPort
+    control: OutputPort
+    output: InputPort
+
+
+def AddStt(  # noqa: N802 (Drake's naming of builder functions)
+    builder: DiagramBuilder,
+    law: TubeLaw,
+    controller: FunnelController | LeafSystem,
+    start: Sequence[float] | np.ndarray,
+    *,
+    obstacles: Sequence[ObstacleModel] | None = None,
+    belief: OutputPort | None = None,
+    obstacle_count: int | None = None,
+    update_period: float | None = None,
+    rate_bounds: BeliefRateBounds | None = None,
+    target_input: bool = False,
+    name: str = "",
+) -> SttHandles:
+    """Add the STT loop for one robot to `builder` and connect it.
+
+    Args:
+        builder: the DiagramBuilder.
+        law: the tube law (Sec. 3; its r_min is also the monitor's).
+        controller: a :class:`FunnelController` (an :class:`STTController` is added), or a
+            controller system already in `builder` with inputs `tube`, `plant_state` and
+            output `control` (e.g. the arm's).
+        start: the tube's initial centre s (n).
+        obstacles: obstacle models (anything with motion, sigma, sigma_schedule, radius,
+            epsilon, p_d: a scenario's obstacles); an :class:`ObstacleBeliefSource` is
+            added. Give either this or `belief`.
+        belief: an `obstacle_belief` output port already in `builder` (a tracker), with
+            `obstacle_count` obstacles.
+        update_period: None for the continuous-time tube, else the fixed update period h (s);
+            then `rate_bounds` is required (:class:`SpatiotemporalTube`).
+        target_input: the tube reads η from an input port `target` (a task sequencer).
+        name: prefix of the added systems' names ("" gives obstacle_belief_source,
+            spatiotemporal_tube, stt_controller, invariant_monitor; "left" gives
+            left_spatiotemporal_tube, ...), so several loops fit in one diagram.
+
+    Returns:
+        the :class:`SttHandles`.
+    """
+    if (obstacles is None) == (belief is None):
+        raise ValueError("AddStt: give exactly one of `obstacles` and `belief`")
+    start = np.asarray(start, dtype=float)
+    n = start.shape[0]
+    prefix = f"{name}_" if name else ""
+    source = None
+    if obstacles is not None:
+        source = builder.AddNamedSystem(
+            f"{prefix}obstacle_belief_source", ObstacleBeliefSource(obstacles, n)
+        )
+        belief = source.GetOutputPort("obstacle_belief")
+        obstacle_count = len(obstacles)
+    elif obstacle_count is None:
+        raise ValueError("AddStt: a `belief` port needs its `obstacle_count`")
+    tube = builder.AddNamedSystem(
+        f"{prefix}spatiotemporal_tube",
+        SpatiotemporalTube(
+            law,
+            start,
+            obstacle_count,
+            update_period=update_period,
+            target_input=target_input,
+            rate_bounds=rate_bounds,
+        ),
+    )
+    if isinstance(controller, FunnelController):
+        controller = builder.AddNamedSystem(f"{prefix}stt_controller", STTController(controller, n))
+    monitor = builder.AddNamedSystem(
+        f"{prefix}invariant_monitor", InvariantMonitor(n, obstacle_count, law.r_min)
+    )
+    tube_output = tube.GetOutputPort("tube")
+    builder.Connect(belief, tube.GetInputPort("obstacle_belief"))
+    builder.Connect(tube_output, controller.GetInputPort("tube"))
+    builder.Connect(tube_output, monitor.GetInputPort("tube"))
+    builder.Connect(belief, monitor.GetInputPort("obstacle_belief"))
+    return SttHandles(
+        belief_source=source,
+        tube_system=tube,
+        controller=controller,
+        monitor=monitor,
+        belief=belief,
+        tube=tube_output,
+        plant_state=controller.GetInputPort("plant_state"),
+        control=controller.GetOutputPort("control"),
+        output=monitor.GetInputPort("output"),
+    )
