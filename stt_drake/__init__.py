@@ -8,7 +8,7 @@ fast and imports no Drake):
   :class:`STTController`, :class:`InvariantMonitor`;
 * building: :func:`AddStt` (the STT loop added to a DiagramBuilder), :func:`build_diagram`
   (a scenario's whole diagram), :func:`load_scenario`, :func:`parse_scenario`;
-* running: :func:`make_simulator`, :func:`simulate`.
+* running: :func:`make_simulator`, :func:`simulate`, and the run log :class:`RunLog`.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ _PUBLIC = {
     "parse_scenario": "stt_drake.build.load",
     "make_simulator": "stt_drake.run",
     "simulate": "stt_drake.run",
+    "RunLog": "stt_drake.runlog",
 }
 
 __all__ = sorted(_PUBLIC)

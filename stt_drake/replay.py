@@ -24,7 +24,8 @@ from matplotlib.colors import to_rgba
 from pydrake.geometry import Box, Cylinder, Meshcat, MeshcatAnimation, Rgba, Sphere
 from pydrake.math import RigidTransform, RotationMatrix
 
-from stt_drake.plotting import PALETTE, decode_log, level_set_radius, obstacle_colors
+from stt_drake.plotting import PALETTE, level_set_radius, obstacle_colors
+from stt_drake.runlog import RunLog
 
 #: Default cap on the number of animation frames (samples are strided to fit).
 MAX_FRAMES = 600
@@ -89,7 +90,7 @@ def _draw_robot(meshcat: Meshcat, dimension: int, body_radius: float) -> None:
         meshcat.SetObject(f"{_ROOT}/robot/body", Cylinder(body_radius, 0.1), color)
 
 
-def _frame_camera(meshcat: Meshcat, run: Any) -> None:
+def _frame_camera(meshcat: Meshcat, run: RunLog) -> None:
     """Aim the camera at the middle of start, target and path, from above and to the side,
     far enough to see all of them."""
     points = np.vstack([_lift(run.output), _lift(run.start[None, :]), _lift(run.target[None, :])])
@@ -107,8 +108,8 @@ def write_meshcat_replay(
     """Write an offline HTML replay of a run (2D or 3D) to `path`.
 
     Args:
-        log: a run log (the `log.npz` layout, see :mod:`stt_drake.plotting`); it may also
-            hold `control` (T, n), used to tilt the UAV body along the commanded force.
+        log: a run log (the `log.npz` layout, see :mod:`stt_drake.runlog`); its `control`
+            (T, n), when logged, tilts the UAV body along the commanded force.
         path: the HTML file to write (its folder is created).
         body_radius: robot radius in metres (the UAV's rotor-tip radius, the omni base
             radius); default :data:`DEFAULT_BODY_RADIUS`.
@@ -118,12 +119,12 @@ def write_meshcat_replay(
     Returns:
         The path written.
     """
-    run = decode_log(log)
+    run = RunLog.of(log)
     n = run.dimension
     if n not in (2, 3):
         raise ValueError(f"write_meshcat_replay draws 2D or 3D runs; this run has dimension {n}")
     body_radius = DEFAULT_BODY_RADIUS if body_radius is None else float(body_radius)
-    control = np.asarray(log["control"], dtype=float) if "control" in log else None
+    control = run.control
     stride = max(1, int(np.ceil(run.t.size / max(max_frames, 1))))
     picks = np.arange(0, run.t.size, stride)
     if picks[-1] != run.t.size - 1:
@@ -149,11 +150,11 @@ def write_meshcat_replay(
         )
         meshcat.SetObject(f"{_ROOT}/tube", Sphere(1.0), _rgba(PALETTE["tube"], 0.25))
         arm = None
-        if "joint_state" in log:  # the FR3 arm: its links, posed from the logged joints
+        if "joint_state" in run:  # the FR3 arm: its links, posed from the logged joints
             from stt_drake.systems.plants.franka import FR3_JOINTS, Fr3Drawing
 
             arm = Fr3Drawing(meshcat, f"{_ROOT}/arm")
-            joints = np.asarray(log["joint_state"], dtype=float)[:, :FR3_JOINTS]
+            joints = run.rows("joint_state")[:, :FR3_JOINTS]
         else:
             _draw_robot(meshcat, n, body_radius)
         level_cache: dict[tuple[float, float, float], float] = {}

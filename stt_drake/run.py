@@ -16,11 +16,10 @@ from stt_drake.build.diagram import SttDiagram, build_diagram
 from stt_drake.build.feasibility import scenario_warnings
 from stt_drake.config import Scenario
 from stt_drake.core.arm import summarize_arm
-from stt_drake.core.belief import obstacle_rate_bounds
 from stt_drake.core.invariants import HOLDS_TOLERANCE, InvariantTracker, reach_story
+from stt_drake.runlog import RunLog
 from stt_drake.story import (
     belief_discontinuities,
-    belief_table,
     recovery_episodes,
     separation_after_entry,
     target_separation_violations,
@@ -35,10 +34,11 @@ _SUMMARY_LISTED = 3
 
 @dataclass
 class RunResult:
-    """A finished run: the metrics (the `metrics.json` contract) and the logs."""
+    """A finished run: the metrics (the `metrics.json` contract) and the run log
+    (:class:`stt_drake.runlog.RunLog`, a mapping of the `log.npz` members)."""
 
     metrics: dict[str, Any]
-    log: dict[str, np.ndarray]
+    log: RunLog
 
     @property
     def success(self) -> bool:
@@ -53,55 +53,10 @@ class RunResult:
         )
 
 
-def collect_log(built: SttDiagram, scenario: Scenario, root_context: object) -> dict[str, Any]:
-    """Read every logger into one dict of arrays (the `log.npz` layout, samples first).
-
-    A run that an exception stopped during a publish has loggers one sample apart: every
-    signal is cut to the samples all loggers have.
-    """
-    logs = {name: sink.FindLog(root_context) for name, sink in built.loggers.items()}
-    samples = min(log.num_samples() for log in logs.values())
-    data = {name: log.data()[:, :samples].T for name, log in logs.items()}
-    mean_speed_bound, sigma_rate_bound = obstacle_rate_bounds(scenario.obstacles)
-    n, m = scenario.dimension, len(scenario.obstacles)
-    tube = data["tube"]
-    diagnostics = data["diagnostics"].reshape(-1, 3, m)
-    log = {
-        "name": np.array(scenario.name),
-        "t": logs["tube"].sample_times()[:samples].copy(),
-        "output": data["output"].copy(),
-        "center": tube[:, :n].copy(),
-        "radius": tube[:, n].copy(),
-        "belief": data["belief"].copy(),
-        "avoid_probability": diagnostics[:, 0, :].copy(),
-        "quantile_distance": diagnostics[:, 1, :].copy(),
-        "theta": diagnostics[:, 2, :].copy(),
-        "recovery": data["recovery"].copy(),
-        "control": data["control"].copy(),
-        "margins": data["margins"].copy(),
-        "output_avoid_probability": data["output_avoid_probability"].copy(),
-        "tube_avoid_probability": data["tube_avoid_probability"].copy(),
-        "dimension": np.array(n),
-        "start": np.asarray(scenario.start, dtype=float),
-        "initial_set_radius": np.array(scenario.initial_set_radius),
-        "target": np.asarray(scenario.target, dtype=float),
-        "target_set_radius": np.array(scenario.target_set_radius),
-        "r_min": np.array(scenario.tube.r_min),
-        "r_max": np.array(scenario.tube.r_max),
-        "mean_speed_bound": mean_speed_bound,
-        "sigma_rate_bound": sigma_rate_bound,
-    }
-    for name in built.extra_logs:  # plant-specific signals, samples first
-        log[name] = data[name].copy()
-    log.update({name: np.asarray(value) for name, value in built.log_constants.items()})
-    return log
-
-
-def obstacle_report(log: dict[str, np.ndarray], scenario: Scenario) -> list[dict[str, Any]]:
+def obstacle_report(log: RunLog, scenario: Scenario) -> list[dict[str, Any]]:
     """Per obstacle: the closest approach of y to its mean, and its σ and ε."""
-    table, n = belief_table(log)
-    means, sigmas = table[:, :, :n], table[:, :, n]
-    distance = np.linalg.norm(log["output"][:, None, :] - means, axis=2)
+    sigmas = log.sigma
+    distance = np.linalg.norm(log.output[:, None, :] - log.mean, axis=2)
     report = []
     for j, obstacle in enumerate(scenario.obstacles):
         if not distance.size:  # nothing logged (a run that failed at its start)
@@ -111,13 +66,11 @@ def obstacle_report(log: dict[str, np.ndarray], scenario: Scenario) -> list[dict
             {
                 "index": j,
                 "min_distance_to_mean": float(distance[k, j]),
-                "t_min_distance": float(log["t"][k]),
+                "t_min_distance": float(log.t[k]),
                 "sigma": float(sigmas[k, j]),
                 "radius": obstacle.radius,
                 "epsilon": obstacle.epsilon,
-                "min_output_avoid_probability": float(
-                    np.min(log["output_avoid_probability"][:, j])
-                ),
+                "min_output_avoid_probability": float(np.min(log.output_avoid_probability[:, j])),
             }
         )
     return report
@@ -195,8 +148,10 @@ def simulate(scenario: Scenario, strict: bool | None = None) -> RunResult:
     context = simulator.get_context()
     # After an exception the context may hold a half-taken step: report the last good one.
     sim_time = context.get_time() if failure is None else (watchdog.last_time or 0.0)
-    log = collect_log(built, scenario, context)
-    tracker.update_many(log["t"], log["margins"])
+    log = RunLog.from_loggers(
+        built.loggers, context, scenario, built.extra_logs, built.log_constants
+    )
+    tracker.update_many(log.t, log.margins)
     if stopped is not None:
         cause = f"strict mode stopped the run at the first violated guarantee: {stopped}"
     elif failure is not None:
@@ -207,20 +162,19 @@ def simulate(scenario: Scenario, strict: bool | None = None) -> RunResult:
     if cause is not None:
         stop_reason = f"{cause}; worst margin so far: {worst_margin_so_far(tracker)}"
     # A task sequence is reached in its last task only (the sequencer logs the active target).
-    targets = log.get("task_target", log["target"])
     reach = reach_story(
-        log["t"],
-        log["center"],
-        log["radius"],
-        targets,
+        log.t,
+        log.center,
+        log.radius,
+        log.active_target,
         scenario.target_set_radius,
-        final_target=log["target"],
+        final_target=log.target,
     )
     t_reach = reach.final_entry_s
     # Plant-specific metrics (none without a logged sample); a task sequence is reached
     # only when every task completed.
     plant_metrics = {}
-    if built.plant_report is not None and len(log["t"]) > 0:
+    if built.plant_report is not None and log.samples > 0:
         plant_metrics = built.plant_report(log)
     segments = plant_metrics.get("segments", [])
     metrics = {
@@ -261,13 +215,12 @@ def write_outputs(result: RunResult, out_dir: Path, figures: bool = True) -> lis
     out_dir.mkdir(parents=True, exist_ok=True)
     metrics_path = out_dir / "metrics.json"
     metrics_path.write_text(json.dumps(result.metrics, indent=2) + "\n")
-    log_path = out_dir / "log.npz"
-    np.savez_compressed(log_path, **result.log)
-    written = [metrics_path, log_path]
-    if figures and len(result.log["t"]) >= 2:
+    log = RunLog.of(result.log)
+    written = [metrics_path, log.save(out_dir / "log.npz")]
+    if figures and log.samples >= 2:
         from stt_drake.plotting import save_run_figures
 
-        written += save_run_figures(result.log, out_dir)
+        written += save_run_figures(log, out_dir)
     return written
 
 

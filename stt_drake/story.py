@@ -3,8 +3,9 @@ the belief discontinuities and the tube's recovery episodes (metrics.json keys
 `assumptions`, `belief_discontinuities` and `recovery`; the reach story is
 :func:`stt_drake.core.invariants.reach_story`).
 
-Pure numpy on the run log (:func:`stt_drake.run.collect_log` layout, samples first), except
-:func:`target_separation_violations`, which reads the scenario before a run.
+Pure numpy on the run log (any mapping with the :mod:`stt_drake.runlog` layout, read
+through :class:`~stt_drake.runlog.RunLog`), except :func:`target_separation_violations`,
+which reads the scenario before a run.
 
 Assumption 3.1 of the paper: after some time t_1, P(‖c(t) − O_j(t)‖ ≥ r_o_j + r_min) ≥ p_d_j
 for every obstacle j and t ≥ t_1 — the obstacles eventually leave the tube's centre, in
@@ -20,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from stt_drake.config import Scenario
-from stt_drake.core.belief import record_size
 from stt_drake.core.probability import avoid_probability
+from stt_drake.runlog import RunLog
 
 #: Relative slack on the rate bounds when looking for a belief discontinuity (a smooth
 #: motion at exactly its bound must not count).
@@ -29,15 +30,6 @@ RATE_SLACK = 1e-6
 #: Absolute slack on a mean change (m) and on a σ change (m) between two samples.
 MEAN_SLACK_M = 1e-9
 SIGMA_SLACK_M = 1e-12
-
-
-def belief_table(log: Mapping[str, np.ndarray]) -> tuple[np.ndarray, int]:
-    """The logged belief as (T, m, n + 4) records ([μ (n), σ, r_o, ε, p_d] per obstacle),
-    and n."""
-    n = int(log["dimension"])
-    belief = np.asarray(log["belief"], dtype=float)
-    record = record_size(n)
-    return belief.reshape(len(log["t"]), belief.shape[-1] // record, record), n
 
 
 def belief_discontinuities(log: Mapping[str, np.ndarray]) -> list[dict[str, Any]]:
@@ -52,20 +44,19 @@ def belief_discontinuities(log: Mapping[str, np.ndarray]) -> list[dict[str, Any]
         (‖Δμ‖), `sigma_jump_m` (Δσ, signed), `q_before` and `q_after` (the tube's
         q_j(c) = `avoid_probability` at k − 1 and k).
     """
-    t = np.asarray(log["t"], dtype=float)
+    run = RunLog.of(log)
+    t = run.t
     if t.size < 2:
         return []
-    table, n = belief_table(log)
-    mean, sigma = table[:, :, :n], table[:, :, n]
     dt = np.diff(t)[:, None]
-    mean_jump = np.linalg.norm(np.diff(mean, axis=0), axis=2)
-    sigma_jump = np.diff(sigma, axis=0)
-    mean_bound = np.asarray(log["mean_speed_bound"], dtype=float)[None, :]
-    sigma_bound = np.asarray(log["sigma_rate_bound"], dtype=float)[None, :]
+    mean_jump = np.linalg.norm(np.diff(run.mean, axis=0), axis=2)
+    sigma_jump = np.diff(run.sigma, axis=0)
+    mean_bound = run.mean_speed_bound[None, :]
+    sigma_bound = run.sigma_rate_bound[None, :]
     jumped = (mean_jump > mean_bound * dt * (1.0 + RATE_SLACK) + MEAN_SLACK_M) | (
         np.abs(sigma_jump) > sigma_bound * dt * (1.0 + RATE_SLACK) + SIGMA_SLACK_M
     )
-    q = np.asarray(log["avoid_probability"], dtype=float)
+    q = run.avoid_probability
     records = []
     for step, j in zip(*np.nonzero(jumped), strict=True):
         k = int(step) + 1
@@ -91,12 +82,12 @@ def recovery_episodes(log: Mapping[str, np.ndarray]) -> list[dict[str, Any]]:
         still recovers at the last sample) and `worst_margin` (min over the episode's
         samples of q_j(c) − ε_j, from `avoid_probability` and the logged ε).
     """
-    t = np.asarray(log["t"], dtype=float)
+    run = RunLog.of(log)
+    t = run.t
     if t.size == 0:
         return []
-    table, n = belief_table(log)
-    margin = np.asarray(log["avoid_probability"], dtype=float) - table[:, :, n + 2]
-    flags = np.asarray(log["recovery"], dtype=float).reshape(t.size, -1) == 1.0
+    margin = run.avoid_probability - run.epsilon
+    flags = run.recovery
     episodes = []
     for j in range(flags.shape[1]):
         edges = np.diff(np.concatenate([[0], flags[:, j].astype(int), [0]]))
@@ -128,13 +119,13 @@ def separation_after_entry(
     """
     if final_entry_s is None:
         return []
-    t = np.asarray(log["t"], dtype=float)
+    run = RunLog.of(log)
+    t = run.t
     after = t >= final_entry_s
     if not np.any(after):
         return []
-    table, n = belief_table(log)
-    q = np.asarray(log["avoid_probability"], dtype=float)[after]
-    p_d = table[after, :, n + 3]
+    q = run.avoid_probability[after]
+    p_d = run.p_d[after]
     records = []
     for j in range(q.shape[1]):
         k = int(np.argmin(q[:, j] - p_d[:, j]))

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import partial
 from typing import Any
@@ -63,7 +63,7 @@ class PlantHandles:
     sequencer: LeafSystem | None = None
     logged: dict[str, OutputPort] = field(default_factory=dict)
     log_constants: dict[str, np.ndarray] = field(default_factory=dict)
-    report: Callable[[dict[str, np.ndarray]], dict[str, Any]] | None = None
+    report: Callable[[Mapping[str, np.ndarray]], dict[str, Any]] | None = None
 
 
 @dataclass
@@ -80,7 +80,7 @@ class SttDiagram:
     sequencer: LeafSystem | None = None
     extra_logs: tuple[str, ...] = ()
     log_constants: dict[str, np.ndarray] = field(default_factory=dict)
-    plant_report: Callable[[dict[str, np.ndarray]], dict[str, Any]] | None = None
+    plant_report: Callable[[Mapping[str, np.ndarray]], dict[str, Any]] | None = None
 
 
 def add_omni_robot(builder: DiagramBuilder, scenario: Scenario) -> PlantHandles:

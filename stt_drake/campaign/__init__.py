@@ -23,22 +23,18 @@ Run i uses the seed :func:`run_seed` (campaign seed, i); ``stt-drake run SCENARI
 replays a randomisation run alone. The statistics are in :mod:`stt_drake.core.statistics`; the
 command is :mod:`stt_drake.cli.campaign`.
 
-Modules: :mod:`~stt_drake.campaign.sampling` (seeds, true-obstacle draws),
+Modules: :mod:`~stt_drake.campaign.spec` (:class:`CampaignSpec`, :class:`CampaignError`),
+:mod:`~stt_drake.campaign.sampling` (seeds, true-obstacle draws),
 :mod:`~stt_drake.campaign.randomisation` (a randomisation run),
 :mod:`~stt_drake.campaign.executor` (pool / Dask, resume, :func:`run_campaign`),
 :mod:`~stt_drake.campaign.report` (summaries, ``campaign.json``, figures, the printed table;
 the package attribute ``report`` is the function :func:`report`, re-exported below).
 """
 
-from stt_drake.campaign.executor import (
-    CLOSED_LOOP_FILE,
-    CampaignError,
-    CampaignSpec,
-    read_records,
-    run_campaign,
-)
+from stt_drake.campaign.executor import CLOSED_LOOP_FILE, read_records, run_campaign
 from stt_drake.campaign.report import report
 from stt_drake.campaign.sampling import ClosedLoop, run_seed, sample_true_obstacles, sample_xi
+from stt_drake.campaign.spec import CampaignError, CampaignSpec
 
 __all__ = [
     "CLOSED_LOOP_FILE",

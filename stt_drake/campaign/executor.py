@@ -1,5 +1,6 @@
-"""Running a campaign: the spec (``campaign_spec.json``), the local process pool or Dask
-cluster the runs go to, resuming from ``runs.jsonl``, and :func:`run_campaign`.
+"""Running a campaign: the local process pool or Dask cluster the runs go to, resuming
+from ``runs.jsonl`` (only by the same spec, kept in ``campaign_spec.json``; the spec is
+:class:`stt_drake.campaign.spec.CampaignSpec`), and :func:`run_campaign`.
 
 Runs go through a :class:`concurrent.futures.Executor`: a local process pool, or a Dask
 ``distributed`` client. Each finished run is appended to ``runs.jsonl``; ``--resume`` skips
@@ -12,7 +13,6 @@ import concurrent.futures as cf
 import contextlib
 import hashlib
 import json
-import math
 import multiprocessing
 import os
 import sys
@@ -31,47 +31,14 @@ from stt_drake.campaign.randomisation import (
 )
 from stt_drake.campaign.report import write_summary
 from stt_drake.campaign.sampling import (
-    MOTIONS,
     ClosedLoop,
     output_collided,
     run_seed,
     sample_true_obstacles,
 )
+from stt_drake.campaign.spec import CampaignError, CampaignSpec
 
-KINDS = ("true-obstacles", "randomisation")
 RUNS_FILE, SPEC_FILE, CLOSED_LOOP_FILE = "runs.jsonl", "campaign_spec.json", "closed_loop.npz"
-
-
-class CampaignError(ValueError):
-    """Bad campaign input; the message names the option or field."""
-
-
-@dataclass(frozen=True)
-class CampaignSpec:
-    """What a campaign is; `runs.jsonl` of one spec can be resumed only by the same spec
-    (up to `runs`)."""
-
-    scenario: str  # path as given
-    kind: str = "true-obstacles"
-    runs: int = 1000
-    seed: int = 0
-    motion: str = "static"
-    tau: float = 2.0
-
-    def validate(self) -> None:
-        """Raise CampaignError naming the option of the first bad value."""
-        if self.kind not in KINDS:
-            raise CampaignError(f"--kind: must be one of {', '.join(KINDS)} (got {self.kind!r})")
-        if self.runs < 1:
-            raise CampaignError(f"--runs: must be ≥ 1 (got {self.runs})")
-        if self.seed < 0:
-            raise CampaignError(f"--seed: must be ≥ 0 (got {self.seed})")
-        if self.motion not in MOTIONS:
-            raise CampaignError(
-                f"--true-obstacle-motion: must be one of {', '.join(MOTIONS)} (got {self.motion!r})"
-            )
-        if not (self.tau > 0.0 and math.isfinite(self.tau)):
-            raise CampaignError(f"--ou-tau: must be a finite time > 0 s (got {self.tau})")
 
 
 def default_workers() -> int:

@@ -11,21 +11,19 @@ import json
 import time
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from stt_drake.campaign.randomisation import draw_failed, failure_name
 from stt_drake.campaign.sampling import CHECKS, ClosedLoop, output_collided
+from stt_drake.campaign.spec import CampaignSpec
 from stt_drake.core.statistics import (
     VIOLATED,
     clopper_pearson,
     family_confidence,
     simultaneous_verdict,
 )
-
-if TYPE_CHECKING:
-    from stt_drake.campaign.executor import CampaignSpec
 
 #: Confidence of every reported interval (jointly, over the whole family of tests).
 CONFIDENCE = 0.99

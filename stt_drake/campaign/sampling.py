@@ -8,14 +8,14 @@ O_j(t) = μ_j(t) + σ_j(t)·ξ_j against one logged :class:`ClosedLoop`
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from stt_drake.core.belief import ObstacleBelief
+from stt_drake.runlog import RunLog
 
 MOTIONS = ("static", "ou")
 #: The two collision checks of a true-obstacle campaign.
@@ -55,23 +55,21 @@ class ClosedLoop:
         return self.sigma.shape[1]
 
     @classmethod
-    def from_log(cls, log: dict[str, Any], epsilon: Sequence[float] | None = None) -> ClosedLoop:
-        """Decode a :func:`stt_drake.run.simulate` log (or a ``log.npz``)."""
-        n = int(np.asarray(log["dimension"]))
-        t = np.asarray(log["t"], dtype=float)
-        samples = len(t)
-        belief = ObstacleBelief.from_vector(np.asarray(log["belief"]).ravel(), n)
-        m = belief.count // samples
-        checked = belief.epsilon.reshape(samples, m)[0] if epsilon is None else epsilon
+    def from_log(cls, log: Mapping[str, Any], epsilon: Sequence[float] | None = None) -> ClosedLoop:
+        """The closed loop of a run log (a :func:`stt_drake.run.simulate` log, a
+        ``log.npz``: see :mod:`stt_drake.runlog`); `epsilon` defaults to the logged ε at
+        the first sample."""
+        run = RunLog.of(log)
+        checked = run.epsilon[0] if epsilon is None else epsilon
         return cls(
-            t=t,
-            output=np.asarray(log["output"], dtype=float).reshape(samples, n),
-            center=np.asarray(log["center"], dtype=float).reshape(samples, n),
-            radius=np.asarray(log["radius"], dtype=float).reshape(samples),
-            mean=belief.mean.reshape(samples, m, n).copy(),
-            sigma=belief.sigma.reshape(samples, m).copy(),
-            obstacle_radius=belief.radius.reshape(samples, m).copy(),
-            epsilon=np.asarray(checked, dtype=float).reshape(m).copy(),
+            t=run.t,
+            output=run.output,
+            center=run.center,
+            radius=run.radius,
+            mean=run.mean.copy(),
+            sigma=run.sigma.copy(),
+            obstacle_radius=run.obstacle_radius.copy(),
+            epsilon=np.asarray(checked, dtype=float).reshape(run.count).copy(),
         )
 
     def save(self, path: Path) -> None:

@@ -6,9 +6,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from stt_drake.campaign.executor import KINDS, RUNS_FILE, CampaignError, CampaignSpec, run_campaign
+from stt_drake.campaign.executor import RUNS_FILE, run_campaign
 from stt_drake.campaign.report import SUMMARY_FILE, report
 from stt_drake.campaign.sampling import MOTIONS
+from stt_drake.campaign.spec import KINDS, CampaignError, CampaignSpec
 from stt_drake.cli.main import BadInputError, CommandError
 
 

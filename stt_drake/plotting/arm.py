@@ -11,6 +11,7 @@ from matplotlib import colormaps
 from matplotlib.figure import Figure
 
 from stt_drake.plotting.style import PALETTE
+from stt_drake.runlog import RunLog
 
 
 def plot_joint_torques(log: Mapping[str, Any]) -> Figure:
@@ -31,10 +32,11 @@ def plot_joint_torques(log: Mapping[str, Any]) -> Figure:
     Returns:
         The figure: three axes sharing the time axis.
     """
-    t = np.asarray(log["t"], dtype=float)
-    torque = np.asarray(log["requested_torque"], dtype=float).reshape(t.size, -1)
-    errors = np.asarray(log["funnel_errors"], dtype=float).reshape(t.size, -1)
-    limit = np.asarray(log["effort_limit"], dtype=float) if "effort_limit" in log else None
+    run = RunLog.of(log)
+    t = run.t
+    torque = run.rows("requested_torque")
+    errors = run.rows("funnel_errors")
+    limit = np.asarray(run["effort_limit"], dtype=float) if "effort_limit" in run else None
     joints = torque.shape[1]
     heavy = list(range(min(4, joints)))
     groups = [(heavy, "joints 1-4"), (list(range(len(heavy), joints)), f"joints 5-{joints}")]
@@ -66,8 +68,8 @@ def plot_joint_torques(log: Mapping[str, Any]) -> Figure:
     ax.set_title("funnel errors (stage 1: task space, stage 2: joint velocities)", fontsize=10)
     ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
     ax.set_xlabel("t (s)")
-    if "external_force" in log:
-        pushed = np.linalg.norm(np.asarray(log["external_force"], dtype=float), axis=1) > 0.0
+    if "external_force" in run:
+        pushed = np.linalg.norm(run.rows("external_force"), axis=1) > 0.0
         for ax in axes:
             ax.fill_between(
                 t,
@@ -79,14 +81,13 @@ def plot_joint_torques(log: Mapping[str, Any]) -> Figure:
                 alpha=0.15,
                 lw=0,
             )
-    if "task_target" in log:
-        target = np.asarray(log["task_target"], dtype=float).reshape(t.size, -1)
-        switches = t[1:][np.any(np.diff(target, axis=0) != 0.0, axis=1)]
+    if "task_target" in run:
+        switches = t[1:][np.any(np.diff(run.active_target, axis=0) != 0.0, axis=1)]
         for ax in axes:
             for time in switches:
                 ax.axvline(time, color=PALETTE["target"], ls=":", lw=1.0)
     for ax in axes:
         ax.grid(alpha=0.25, lw=0.5)
-    name = str(np.asarray(log["name"]).item()) if "name" in log else ""
+    name = run.name
     fig.suptitle(f"{name} — joint torques and funnel errors" if name else "joint torques")
     return fig

@@ -9,7 +9,8 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from stt_drake.plotting.style import PALETTE, _decode, _obstacle_colors, _Run, _sigma_colorbar
+from stt_drake.plotting.style import PALETTE, _obstacle_colors, _sigma_colorbar
+from stt_drake.runlog import RunLog
 
 #: Markers that tell obstacles apart in line plots when their σ colours coincide.
 _OBSTACLE_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">", "*")
@@ -62,7 +63,7 @@ def _corner_note(ax: Any, text: str, height: float, zorder: float | None = None)
     )
 
 
-def _plot_obstacle_margins(fig: Figure, ax: Any, run: _Run) -> None:
+def _plot_obstacle_margins(fig: Figure, ax: Any, run: RunLog) -> None:
     """Each obstacle's output avoidance margin q̂_j(y) − ε_j over time, coloured by σ̄_j.
 
     ≤ :data:`_LEGEND_MAX` obstacles: a "#j" legend (0-based, as in the scenario and
@@ -136,7 +137,7 @@ def plot_margins(log: Mapping[str, Any]) -> Figure:
         The figure: six axes in a 3 × 2 grid sharing the time axis, plus a σ colourbar
         when there are more than :data:`_LEGEND_MAX` obstacles.
     """
-    run = _decode(log)
+    run = RunLog.of(log)
     fig = Figure(figsize=(10.5, 8.0), layout="constrained")
     axes = fig.subplots(3, 2, sharex=True)
     flat = axes.ravel()

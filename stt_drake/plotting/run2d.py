@@ -15,20 +15,19 @@ from mpl_toolkits.mplot3d.art3d import Line3DCollection
 from stt_drake.plotting.style import (
     _MANY_OBSTACLES,
     PALETTE,
-    _decode,
     _default_times,
     _nearest_index,
     _obstacle_colors,
     _obstacle_discs,
-    _Run,
     _sigma_colorbar,
 )
+from stt_drake.runlog import RunLog
 
 #: Alpha of the {q̂ ≤ p_d} and {q̂ ≤ ε} discs.
 _LIGHT_ALPHA, _DARK_ALPHA = 0.14, 0.38
 
 
-def _snapshot_limits(run: _Run, indices: Sequence[int], extents: np.ndarray) -> np.ndarray:
+def _snapshot_limits(run: RunLog, indices: Sequence[int], extents: np.ndarray) -> np.ndarray:
     """[[x_lo, x_hi], [y_lo, y_hi]] covering everything drawn in any snapshot, with a pad."""
     points = [run.output[:, :2], run.center[:, :2]]
     lows = [
@@ -70,7 +69,7 @@ def plot_snapshots(log: Mapping[str, Any], times: Sequence[float] | None = None)
     Returns:
         The figure: one axes per instant plus a σ colourbar (when there are obstacles).
     """
-    run = _decode(log)
+    run = RunLog.of(log)
     if run.dimension != 2:
         raise ValueError(f"plot_snapshots draws 2D runs; this run has dimension {run.dimension}")
     indices = [_nearest_index(run.t, time) for time in (times or _default_times(run))]
@@ -163,7 +162,7 @@ def plot_tube_3d(log: Mapping[str, Any], circles: int = 60) -> Figure:
     Returns:
         The figure: one 3D axes plus a σ colourbar (when there are obstacles).
     """
-    run = _decode(log)
+    run = RunLog.of(log)
     if run.dimension != 2:
         raise ValueError(f"plot_tube_3d draws 2D runs; this run has dimension {run.dimension}")
     norm, cmap = _obstacle_colors(run)

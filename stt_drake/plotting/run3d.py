@@ -14,13 +14,12 @@ from matplotlib.patches import Patch
 from stt_drake.plotting.style import (
     _MANY_OBSTACLES,
     PALETTE,
-    _decode,
     _default_times,
     _nearest_index,
     _obstacle_colors,
-    _Run,
     _sigma_colorbar,
 )
+from stt_drake.runlog import RunLog
 
 
 def _sphere_surface(
@@ -62,7 +61,7 @@ def _wire_sphere(center: np.ndarray, radius: float, circles: int = 6) -> np.ndar
     return (np.asarray(center, dtype=float) + radius * unit).T
 
 
-def _snapshot_cube(run: _Run, pad: float = 0.06) -> np.ndarray:
+def _snapshot_cube(run: RunLog, pad: float = 0.06) -> np.ndarray:
     """(3, 2) limits of one cube (equal spans) around the task: the start and target sets,
     the output and the tube over the whole run, padded by `pad` times the largest span
     (0.5 m on the UAV's ~8 m scene, 5 cm on the arm's). Obstacles outside it are clipped,
@@ -101,7 +100,7 @@ def _side_view(start: np.ndarray, target: np.ndarray) -> tuple[float, float]:
     return elevation, float(np.degrees(np.arctan2(side[1], side[0]))) + 25.0
 
 
-def _main_direction(run: _Run) -> np.ndarray:
+def _main_direction(run: RunLog) -> np.ndarray:
     """The direction along which the output path extends most (its first principal axis):
     the start–target line of a straight trip, the transfer of a pick-and-place. Falls back
     to target − start when the path is a point."""
@@ -131,7 +130,7 @@ def plot_snapshots_3d(log: Mapping[str, Any], times: Sequence[float] | None = No
     Returns:
         The figure: one 3D axes per instant plus a σ colourbar (when there are obstacles).
     """
-    run = _decode(log)
+    run = RunLog.of(log)
     if run.dimension != 3:
         raise ValueError(f"plot_snapshots_3d draws 3D runs; this run has dimension {run.dimension}")
     indices = [_nearest_index(run.t, time) for time in (times or _default_times(run))]

@@ -10,7 +10,7 @@ from stt_drake.plotting.arm import plot_joint_torques
 from stt_drake.plotting.margins import plot_margins
 from stt_drake.plotting.run2d import plot_snapshots, plot_tube_3d
 from stt_drake.plotting.run3d import plot_snapshots_3d
-from stt_drake.plotting.style import _decode
+from stt_drake.runlog import RunLog
 
 
 def save_run_figures(log: Mapping[str, Any], out_dir: str | Path, dpi: int = 120) -> list[Path]:
@@ -26,15 +26,15 @@ def save_run_figures(log: Mapping[str, Any], out_dir: str | Path, dpi: int = 120
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    run = _decode(log)  # once: an npz re-reads every member from its zip on each access
+    run = RunLog.of(log)  # once: an npz re-reads every member from its zip on each access
     builders: list[tuple[str, Any]] = []
     if run.dimension == 2:
         builders += [("snapshots.png", plot_snapshots), ("tube_3d.png", plot_tube_3d)]
     elif run.dimension == 3:
         builders.append(("snapshots.png", plot_snapshots_3d))
     builders.append(("margins.png", plot_margins))
-    if "requested_torque" in log:  # a torque-controlled arm
-        builders.append(("joint_torques.png", lambda _: plot_joint_torques(log)))
+    if "requested_torque" in run:  # a torque-controlled arm
+        builders.append(("joint_torques.png", plot_joint_torques))
     written = []
     for filename, build in builders:
         path = out / filename

@@ -1,5 +1,5 @@
-"""What every figure of a run log shares: the palette, the decoded run, the σ colours and
-the obstacles' level-set discs.
+"""What every figure of a run log shares: the palette, the σ colours and the obstacles'
+level-set discs. The figures read the log through :class:`stt_drake.runlog.RunLog`.
 
 All figures share one visual language, :data:`PALETTE`; obstacles are coloured by σ through
 :func:`obstacle_colors`.
@@ -14,7 +14,6 @@ root find (:func:`level_set_radius`).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -24,9 +23,9 @@ from matplotlib.colors import Colormap, ListedColormap, Normalize
 from matplotlib.figure import Figure
 from scipy.optimize import brentq
 
-from stt_drake.core.belief import ObstacleBelief
 from stt_drake.core.invariants import tube_reach_time
 from stt_drake.core.probability import noncentral_chi_sf
+from stt_drake.runlog import RunLog
 
 #: The one visual language of every figure.
 PALETTE: dict[str, Any] = {
@@ -44,72 +43,6 @@ PALETTE: dict[str, Any] = {
 _CMAP_RANGE = (0.35, 0.95)
 #: Beyond this many obstacles the 3D figures draw them thinner, fainter and sparser.
 _MANY_OBSTACLES = 10
-
-
-@dataclass(frozen=True)
-class _Run:
-    """A run log decoded once (npz members are re-read from the zip on every access)."""
-
-    name: str
-    dimension: int
-    t: np.ndarray  # (T,)
-    output: np.ndarray  # (T, n)
-    center: np.ndarray  # (T, n)
-    radius: np.ndarray  # (T,)
-    mean: np.ndarray  # (T, m, n)
-    sigma: np.ndarray  # (T, m)
-    obstacle_radius: np.ndarray  # (T, m)
-    epsilon: np.ndarray  # (T, m)
-    p_d: np.ndarray  # (T, m)
-    margins: np.ndarray  # (T, 5)
-    output_avoid_probability: np.ndarray  # (T, m)
-    start: np.ndarray  # (n,)
-    initial_set_radius: float
-    target: np.ndarray  # (n,)
-    target_set_radius: float
-    r_min: float
-    r_max: float | None
-
-    @property
-    def count(self) -> int:
-        return self.sigma.shape[1]
-
-
-def _decode(log: Mapping[str, Any] | _Run) -> _Run:
-    if isinstance(log, _Run):
-        return log
-    dimension = int(np.asarray(log["dimension"]))
-    t = np.asarray(log["t"], dtype=float)
-    samples = t.shape[0]
-    belief_rows = np.asarray(log["belief"], dtype=float).reshape(samples, -1)
-    # One from_vector call on all rows: its (T·m, n+4) table, reshaped back to (T, m, ...).
-    belief = ObstacleBelief.from_vector(belief_rows.ravel(), dimension)
-    count = belief.count // samples if samples else 0
-    name = np.asarray(log["name"]).item() if "name" in log else ""
-    r_max = float(np.asarray(log["r_max"])) if "r_max" in log else None
-    return _Run(
-        name=str(name),
-        dimension=dimension,
-        t=t,
-        output=np.asarray(log["output"], dtype=float).reshape(samples, dimension),
-        center=np.asarray(log["center"], dtype=float).reshape(samples, dimension),
-        radius=np.asarray(log["radius"], dtype=float).reshape(samples),
-        mean=belief.mean.reshape(samples, count, dimension),
-        sigma=belief.sigma.reshape(samples, count),
-        obstacle_radius=belief.radius.reshape(samples, count),
-        epsilon=belief.epsilon.reshape(samples, count),
-        p_d=belief.p_d.reshape(samples, count),
-        margins=np.asarray(log["margins"], dtype=float).reshape(samples, -1),
-        output_avoid_probability=np.asarray(log["output_avoid_probability"], dtype=float).reshape(
-            samples, count
-        ),
-        start=np.asarray(log["start"], dtype=float).reshape(dimension),
-        initial_set_radius=float(np.asarray(log["initial_set_radius"])),
-        target=np.asarray(log["target"], dtype=float).reshape(dimension),
-        target_set_radius=float(np.asarray(log["target_set_radius"])),
-        r_min=float(np.asarray(log["r_min"])),
-        r_max=r_max,
-    )
 
 
 def level_set_radius(level: float, sigma: float, radius: float, dimension: int) -> float:
@@ -145,7 +78,7 @@ def level_set_radius(level: float, sigma: float, radius: float, dimension: int) 
     return sigma * brentq(gap, 0.0, upper, xtol=1e-13, rtol=8.0 * np.finfo(float).eps)
 
 
-def _obstacle_colors(run: _Run) -> tuple[Normalize, Colormap]:
+def _obstacle_colors(run: RunLog) -> tuple[Normalize, Colormap]:
     """The σ → colour map shared by every figure of a run."""
     base = colormaps[PALETTE["obstacle_cmap"]]
     cmap = ListedColormap(base(np.linspace(*_CMAP_RANGE, 256)), name="obstacle_sigma")
@@ -158,22 +91,16 @@ def _obstacle_colors(run: _Run) -> tuple[Normalize, Colormap]:
 
 
 def _sigma_colorbar(
-    fig: Figure, run: _Run, axes: Any, shrink: float = 0.8, pad: float = 0.02
+    fig: Figure, run: RunLog, axes: Any, shrink: float = 0.8, pad: float = 0.02
 ) -> None:
     norm, cmap = _obstacle_colors(run)
     bar = fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=axes, shrink=shrink, pad=pad)
     bar.set_label("σ (m)")
 
 
-def decode_log(log: Mapping[str, Any]) -> _Run:
-    """A run log decoded once into arrays (obstacle beliefs unpacked per sample); the
-    figures and :mod:`stt_drake.replay` draw from it."""
-    return _decode(log)
-
-
 def obstacle_colors(log: Mapping[str, Any]) -> tuple[Normalize, Colormap]:
     """The σ → colour map of a run's obstacles (the one every figure and the replay use)."""
-    return _obstacle_colors(_decode(log))
+    return _obstacle_colors(RunLog.of(log))
 
 
 def reach_time(log: Mapping[str, Any]) -> float | None:
@@ -181,11 +108,11 @@ def reach_time(log: Mapping[str, Any]) -> float | None:
 
     The tube B(c, r) is inside the target ball when ‖c − target‖ + r ≤ target radius.
     """
-    run = _decode(log)
+    run = RunLog.of(log)
     return tube_reach_time(run.t, run.center, run.radius, run.target, run.target_set_radius)
 
 
-def _default_times(run: _Run) -> list[float]:
+def _default_times(run: RunLog) -> list[float]:
     t_reach = reach_time(run)
     t0, t_end = float(run.t[0]), float(run.t[-1])
     middle = 0.5 * (t0 + t_reach) if t_reach is not None and t_reach > t0 else 0.5 * (t0 + t_end)
@@ -196,7 +123,7 @@ def _nearest_index(t: np.ndarray, time: float) -> int:
     return int(np.argmin(np.abs(t - time)))
 
 
-def _obstacle_discs(run: _Run, index: int) -> np.ndarray:
+def _obstacle_discs(run: RunLog, index: int) -> np.ndarray:
     """(m, 2) radii of {q̂ ≤ p_d} and {q̂ ≤ ε} for every obstacle at sample `index`."""
     return np.array(
         [
