@@ -312,7 +312,7 @@ class RunLog(Mapping[str, np.ndarray]):
 
     @cached_property
     def p_d(self) -> np.ndarray:
-        """(T, m) separation levels p_d_j of Assumption 3.1."""
+        """(T, m) separation levels p_d_j of Assumption 3."""
         return self._per_obstacle(self._belief.p_d)
 
     def belief_at(self, index: int) -> ObstacleBelief:

@@ -7,7 +7,7 @@ Pure numpy on the run log (any mapping with the :mod:`stt_drake.runlog` layout, 
 through :class:`~stt_drake.runlog.RunLog`), except :func:`target_separation_violations`,
 which reads the scenario before a run.
 
-Assumption 3.1 of the paper: after some time t_1, P(‖c(t) − O_j(t)‖ ≥ r_o_j + r_min) ≥ p_d_j
+Assumption 3 of the paper: after some time t_1, P(‖c(t) − O_j(t)‖ ≥ r_o_j + r_min) ≥ p_d_j
 for every obstacle j and t ≥ t_1 — the obstacles eventually leave the tube's centre, in
 particular the target, alone. The tube needs it to stay in the target set; a scenario that
 breaks it can make the tube leave T again after t_c.
@@ -108,13 +108,13 @@ def recovery_episodes(log: Mapping[str, np.ndarray]) -> list[dict[str, Any]]:
 def separation_after_entry(
     log: Mapping[str, np.ndarray], final_entry_s: float | None
 ) -> list[dict[str, Any]]:
-    """Assumption 3.1 on the log: after the final entry into the target set, the tube's own
+    """Assumption 3 on the log: after the final entry into the target set, the tube's own
     q_j(c) (`avoid_probability`, buffered radius r_o + r_min) must stay ≥ p_d_j.
 
     Returns:
         One `assumptions` record per obstacle whose minimum q_j after `final_entry_s` is
         below p_d_j (none when the run never settles in the target set): `assumption`
-        ("3.1"), `obstacle`, `t` (when the minimum occurred), `value` (that q_j),
+        ("3"), `obstacle`, `t` (when the minimum occurred), `value` (that q_j),
         `required` (p_d_j) and `message`.
     """
     if final_entry_s is None:
@@ -133,7 +133,7 @@ def separation_after_entry(
             when = float(t[after][k])
             records.append(
                 {
-                    "assumption": "3.1",
+                    "assumption": "3",
                     "obstacle": j,
                     "t": when,
                     "value": float(q[k, j]),
@@ -141,7 +141,7 @@ def separation_after_entry(
                     "message": (
                         f"obstacle {j} came within p_d of the tube's centre after it settled in "
                         f"the target set (t_c = {final_entry_s:.2f} s): q = {q[k, j]:.6g} < "
-                        f"p_d = {p_d[k, j]:.6g} at t = {when:.2f} s, so Assumption 3.1 does "
+                        f"p_d = {p_d[k, j]:.6g} at t = {when:.2f} s, so Assumption 3 does "
                         "not hold in this run"
                     ),
                 }
@@ -152,7 +152,7 @@ def separation_after_entry(
 def target_separation_violations(
     scenario: Scenario, checkpoints: int = 200
 ) -> list[dict[str, Any]]:
-    """Assumption 3.1 at the target, checked on the scenario before a run.
+    """Assumption 3 at the target, checked on the scenario before a run.
 
     For each obstacle, q_j(η, t) = P(‖η − O_j(t)‖ ≥ r_o_j + r_min) is evaluated at
     `checkpoints` times evenly over [0, duration] (η: the scenario's final target). An
@@ -161,7 +161,7 @@ def target_separation_violations(
     draws are kept only if they satisfy it, see :class:`stt_drake.config.RandomObstacles`.)
 
     Returns:
-        One `assumptions` record per such obstacle: `assumption` ("3.1"), `obstacle`, `t`
+        One `assumptions` record per such obstacle: `assumption` ("3"), `obstacle`, `t`
         (the last checkpoint, = duration), `value` (q_j(η, t)), `required` (p_d_j) and
         `message` (which also says since when it has been below p_d).
     """
@@ -182,7 +182,7 @@ def target_separation_violations(
         since = float(times[0 if clear.size == 0 else clear[-1] + 1])
         records.append(
             {
-                "assumption": "3.1",
+                "assumption": "3",
                 "obstacle": int(j),
                 "t": float(times[-1]),
                 "value": float(q[-1, j]),
@@ -190,7 +190,7 @@ def target_separation_violations(
                 "message": (
                     f"obstacle {j} is within p_d of the target at the end (explicit obstacle): "
                     f"q = {q[-1, j]:.6g} < p_d = {p_d[j]:.6g} from t = {since:.2f} s to the "
-                    f"end ({times[-1]:.2f} s), so Assumption 3.1 cannot hold"
+                    f"end ({times[-1]:.2f} s), so Assumption 3 cannot hold"
                 ),
             }
         )

@@ -1,4 +1,4 @@
-"""Closed loops of every omni scenario against the paper's guarantees (Thm. 3.1, Thm. 4.1)."""
+"""Closed loops of every omni scenario against the paper's guarantees (Theorem 3.2, Theorem 4.1)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Tests of stt_drake.core.control (the funnel controller of paper Sec. 5 / Theorem 4.1).
+"""Tests of stt_drake.core.control (the funnel controller of paper Sec. 4 / Theorem 4.1).
 
 The reference is an independent, deliberately plain implementation of DESIGN.md's formulas
 (ln((1+e)/(1−e)) rather than atanh, explicit diagonal matrices and a matrix inverse), and a

@@ -1,4 +1,4 @@
-"""Closed loops of the FR3 pick-and-place (paper Sec. 6.3) against the paper's guarantees.
+"""Closed loops of the FR3 pick-and-place (paper Sec. 5.3) against the paper's guarantees.
 
 Every guarantee is recomputed from the raw logs (the recomputation of the omni closed-loop
 tests, reused), the task sequence is re-derived from the logged target and tube, the
@@ -125,7 +125,7 @@ def test_the_more_uncertain_obstacle_gets_the_wider_detour(run_scenario):
     assert distance[1][0] > distance[1][1] + 0.03  # case 1: wider berth to obstacle 0
     assert distance[2][1] > distance[2][0] + 0.03  # case 2: wider berth to obstacle 1
     assert distance[1][0] > distance[2][0] + 0.03 and distance[2][1] > distance[1][1] + 0.03
-    # Each passes outside the ε level set of its point avoidance probability (Def. 2.2).
+    # Each passes outside the ε level set of its point avoidance probability (Definition 2.3).
     for case in (1, 2):
         for o in report[case]:
             reach = level_set_radius(o["epsilon"], o["sigma"], o["radius"], 3)

@@ -1,7 +1,7 @@
 """The arm's control law, its Drake systems and its scenario rules, one piece at a time.
 
 References: textbook formulas written out here (the damped least-squares inverse
-Jᵀ(JJᵀ + λ²I)⁻¹, the funnel stages of Sec. 5), the published DH kinematics (from
+Jᵀ(JJᵀ + λ²I)⁻¹, the funnel stages of Sec. 4), the published DH kinematics (from
 test_franka_model) and the physics of the simulated plant.
 """
 

@@ -1,5 +1,5 @@
 """The run story on synthetic logs: reach entries/exits, belief discontinuities, recovery
-episodes and Assumption 3.1 (pure numpy, no simulation)."""
+episodes and Assumption 3 (pure numpy, no simulation)."""
 
 from __future__ import annotations
 
@@ -216,21 +216,21 @@ def test_recovery_episodes_with_their_worst_margin_and_one_still_running():
 def test_separation_after_the_final_entry_reports_each_obstacle_below_p_d():
     t = 0.1 * np.arange(10)
     q = np.full((10, 3), 0.99999)
-    q[2, 0] = 0.5  # before the final entry: not part of Assumption 3.1's "after t_1"
+    q[2, 0] = 0.5  # before the final entry: not part of Assumption 3's "after t_1"
     q[6, 1], q[8, 1] = 0.9995, 0.999
     log = make_log(t, np.zeros((10, 3, 2)), np.full((10, 3), 0.1), [0] * 3, [0] * 3, q)
     records = separation_after_entry(log, final_entry_s=0.5)
     assert len(records) == 1
     record = records[0]
-    assert (record["assumption"], record["obstacle"]) == ("3.1", 1)
+    assert (record["assumption"], record["obstacle"]) == ("3", 1)
     assert record["t"] == pytest.approx(0.8)
     assert (record["value"], record["required"]) == (pytest.approx(0.999), pytest.approx(0.9999))
-    assert "obstacle 1" in record["message"] and "3.1" in record["message"]
+    assert "obstacle 1" in record["message"] and "Assumption 3 " in record["message"]
     assert len(separation_after_entry(log, final_entry_s=0.2)) == 2
     assert separation_after_entry(log, final_entry_s=None) == []
 
 
-def test_an_obstacle_parked_on_the_target_breaks_assumption_3_1_before_the_run():
+def test_an_obstacle_parked_on_the_target_breaks_assumption_3_before_the_run():
     scenario = load_scenario(ROOT / "diagrams" / "omni_hardware_case1.yaml")
     assert target_separation_violations(scenario) == []
     parked = copy.deepcopy(scenario)
@@ -253,7 +253,7 @@ def test_an_obstacle_parked_on_the_target_breaks_assumption_3_1_before_the_run()
     assert len(records) == 1
     record = records[0]
     index = len(scenario.obstacles)
-    assert (record["assumption"], record["obstacle"]) == ("3.1", index)
+    assert (record["assumption"], record["obstacle"]) == ("3", index)
     assert record["t"] == pytest.approx(parked.duration)
     assert record["value"] < record["required"] == pytest.approx(0.9999)
     assert f"obstacle {index} is within p_d of the target at the end" in record["message"]
@@ -276,7 +276,7 @@ def test_closed_loop_run_records_the_broken_assumption_and_the_warnings(
 ):
     """Case 1 with an obstacle that settles next to the target after the tube has: the
     run succeeds (nothing guaranteed is violated), and metrics.json and the summary
-    record Assumption 3.1 twice — before the run from the scenario (explicit obstacle at
+    record Assumption 3 twice — before the run from the scenario (explicit obstacle at
     the end) and from the log after t_c — plus the scenario's validation warnings."""
     from stt_drake import run as run_module
     from stt_drake.cli.main import main

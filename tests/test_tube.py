@@ -415,7 +415,7 @@ def test_null_space_direction_3d_varies_continuously_along_a_path(goal):
 # Attraction flow and reach time
 # --------------------------------------------------------------------------------------
 def _paper_closed_form(center_1, target, k1, elapsed):
-    """Eq. (cen_simplified) per component with the signed powers of DESIGN.md:
+    """Eq. (13) per component with the signed powers of DESIGN.md:
     c(t) = η − sign(η − c₁)·max(|η − c₁|^{2/3} − (2/3)k1 (t − t₁), 0)^{3/2}."""
     error = target - center_1
     inner = np.abs(error) ** (2.0 / 3.0) - (2.0 / 3.0) * k1 * elapsed
@@ -561,7 +561,7 @@ def test_advance_keeps_q_above_epsilon_through_the_thin_barrier_layer():
         margins.append(q - belief.epsilon[0])
         radii.append(evaluation.radius)
         active += evaluation.theta[0] > 0.0
-        # Claim (ii): the whole tube misses the obstacle with probability ≥ ε (r ≤ d̂; the
+        # Theorem 3.2 (ii): the whole tube misses the obstacle with probability ≥ ε (r ≤ d̂; the
         # 1e-10 is the quantile's root-finding accuracy).
         tube_margins.append(
             ball_avoid_probability(

@@ -1,6 +1,6 @@
-"""UAV case study (paper Sec. 6.2): a second-order quadrotor among uncertain 3D obstacles.
+"""UAV case study (paper Sec. 5.2): a second-order quadrotor among uncertain 3D obstacles.
 
-Closed loops of both UAV scenarios against the paper's guarantees (Thm. 3.1, Thm. 4.1),
+Closed loops of both UAV scenarios against the paper's guarantees (Theorem 3.2, Theorem 4.1),
 model-freeness (a different true mass or drag, same controller), wind rejection, the 3D
 choice of v_j ⟂ m_j, the Quadrotor plant against its equations of motion, and the
 scenario rules of the UAV config.
@@ -128,7 +128,7 @@ def test_more_uncertain_obstacle_gets_a_wider_berth(run_scenario):
 )
 def test_guarantees_hold_with_a_different_true_plant(field, factor):
     """The controller never reads mass or drag: the same gains and funnels must still meet
-    every guarantee when the true plant changes (model-free, Thm. 4.1)."""
+    every guarantee when the true plant changes (model-free, Theorem 4.1)."""
     scenario = load_scenario(DIAGRAMS / "uav_paper.yaml")
     changed = getattr(scenario.plant, field) * factor
     scenario.plant = dataclasses.replace(scenario.plant, **{field: changed})

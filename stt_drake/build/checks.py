@@ -1,5 +1,5 @@
 """The scenario rules that need the built laws or the arm model (the rest are in
-:mod:`stt_drake.config.validate`): the funnels of Sec. 5 contain each stage's initial
+:mod:`stt_drake.config.validate`): the funnels of Sec. 4 contain each stage's initial
 error, the arm starts inside its joint limits with its TCP in Γ(0), and the real-time
 checks of :mod:`stt_drake.build.feasibility`."""
 
@@ -87,7 +87,7 @@ def initial_stage_states(scenario: Scenario) -> np.ndarray:
 
 
 def _validate_funnel_starts(scenario: Scenario) -> None:
-    """Sec. 5: each box funnel must contain its stage's initial error,
+    """Sec. 4: each box funnel must contain its stage's initial error,
     |x_k,i(0) − r_k,i(0)| < p_k,i, with r_k(0) from the control law at t = 0 (so r_2(0) = 0
     when y(0) = s, and p_2 must exceed |v(0)| per axis)."""
     if PLANT_STAGES[type(scenario.plant)] < 2:
@@ -103,7 +103,7 @@ def _validate_funnel_starts(scenario: Scenario) -> None:
             bool(np.all(np.abs(error) < 1.0)),
             f"scenario.controller.funnels[{k}].start",
             f"must exceed the initial error |x_{k + 2}(0) − r_{k + 2}(0)| = "
-            f"{np.round(initial_error, 6).tolist()} on every axis (Sec. 5)",
+            f"{np.round(initial_error, 6).tolist()} on every axis (Sec. 4)",
             funnel.start,
         )
 
@@ -124,6 +124,6 @@ def _validate_arm_funnel_start(
         bool(np.all(np.abs(evaluation.normalized_errors[1:]) < 1.0)),
         "scenario.controller.funnels[0].start",
         "must exceed the initial joint-velocity error |q̇(0) − q̇_ref(0)| = "
-        f"{np.round(np.abs(evaluation.joint_velocity), 6).tolist()} rad/s on every joint (Sec. 5)",
+        f"{np.round(np.abs(evaluation.joint_velocity), 6).tolist()} rad/s on every joint (Sec. 4)",
         scenario.controller.funnels[0].start,
     )

@@ -5,7 +5,7 @@ Pure numpy (the arm's lever arms come from its model, loaded only for arm scenar
 *Following speed.* The controller saturates its normalised error at 1 − 1e-9
 (:data:`stt_drake.core.control.ERROR_SATURATION`), so ρ₁ ≤ ρ_max ≈ 21.4: at the tube boundary
 stage 1 pulls the output back at no more than κ₁·ρ_max·r. With r ≥ r_low = r_min −
-ln(n_o + 1)/ν (claim iii, while every q_j > ε_j), the output can close on the centre at
+ln(n_o + 1)/ν (Theorem 3.2 (iii), while every q_j > ε_j), the output can close on the centre at
 
     available = g·κ₁·ρ_max·r_low − (what the plant adds on its own)
 
@@ -62,7 +62,7 @@ _DERIVED_SPEED_SHARE = 1.0 / 3.0
 
 
 def radius_lower_bound(scenario: Scenario) -> float:
-    """r_low = r_min − ln(n_o + 1)/ν: the radius while every q_j > ε_j (claim iii); r_max
+    """r_low = r_min − ln(n_o + 1)/ν: the radius while every q_j > ε_j (Theorem 3.2 (iii)); r_max
     without obstacles."""
     count = len(scenario.obstacles)
     if count == 0:
@@ -239,7 +239,7 @@ def scenario_warnings(scenario: Scenario) -> list[str]:
 def escape_speed(max_center_speed: float, k2: float, k3: float, dimension: int) -> float:
     """How fast the saturated law moves the centre out of a level set of q_j near ε_j (m/s).
 
-    There θ_j dominates eq. (cen_dynamic): ċ ∝ k2·m_j + k3·v_j with v_j ⟂ m_j and
+    There θ_j dominates Eq. (4): ċ ∝ k2·m_j + k3·v_j with v_j ⟂ m_j and
     |v_j| = |m_j| (n ≥ 2), and saturation scales that vector to v_c = `max_center_speed`, so
     its component along m_j (the direction that raises q_j) is v_c·k2/√(k2² + k3²). In one
     dimension there is no v_j and it is v_c.

@@ -30,7 +30,7 @@ class AssumptionError(ScenarioError):
 
 @dataclass
 class Obstacle:
-    """One uncertain obstacle (Def. 2.1): a ball of `radius` around a Gaussian centre.
+    """One uncertain obstacle (Definition 2.1): a ball of `radius` around a Gaussian centre.
 
     `sigma` is the standard deviation of the centre per axis in metres (σ, not σ²);
     `sigma_schedule`, when given, replaces it with a piecewise-linear σ(t).
@@ -51,8 +51,8 @@ class RandomObstacles:
     Means are uniform in [region_min, region_max]; sigma, epsilon, oscillation amplitude
     (per axis) and frequency are uniform in their [low, high] ranges. A draw is kept only
     if its whole path stays clear of the start and the target with probability ≥ p_d
-    (checked with the buffered radius r_o + r_min; Assumption 3.1 and the initial
-    condition of Def. 2.2). `count_range` = [low, high], when given instead of `count`,
+    (checked with the buffered radius r_o + r_min; Assumption 3 and the initial
+    condition of Definition 2.3). `count_range` = [low, high], when given instead of `count`,
     draws the number of obstacles uniformly from those integers (randomisation campaigns).
     """
 
@@ -71,7 +71,7 @@ class RandomObstacles:
 
 @dataclass
 class TubeConfig:
-    """Tube law constants (eqs. cen_dynamic, rad_sol). `nu` = 0 means "derive it":
+    """Tube law constants (Eqs. (4) and (14)). `nu` = 0 means "derive it":
     ν = 2 ln(n_o + 1)/r_min, which keeps r ≥ r_min/2. `update_rate_hz` = 0 integrates the
     centre in continuous time; > 0 runs the fixed-rate (real-time) discrete update.
     `max_center_speed` (m/s) bounds |ċ| always, and is the speed of a recovery (0 derives
@@ -194,7 +194,7 @@ Plant = Union[OmniRobot, Quadrotor, FrankaArm]  # noqa: UP007 (drake yaml needs 
 #: Output-space dimension each plant works in.
 PLANT_DIMENSION = {OmniRobot: 2, Quadrotor: 3, FrankaArm: 3}
 
-#: Number of stages N of eq. (sysdyn) each plant has: the controller needs N gains κ and
+#: Number of stages N of Eq. (1) each plant has: the controller needs N gains κ and
 #: N − 1 box funnels.
 PLANT_STAGES = {OmniRobot: 1, Quadrotor: 2, FrankaArm: 2}
 

@@ -1,7 +1,7 @@
 """The rules of the paper and of the file format that a scenario can be checked against
 without building anything: shapes, signs, ranges, ν, the plant's fields, the controller's
 gains and funnels, and the initial avoidance condition q_j(s, 0) > ε_j (J(0) > 0 in the
-proof of Thm 3.1 (ii)). Every broken rule raises :class:`ScenarioError` naming the full
+proof of Theorem 3.2 (ii)). Every broken rule raises :class:`ScenarioError` naming the full
 field path and the rule.
 """
 
@@ -273,7 +273,8 @@ def validate(scenario: Scenario) -> None:
 
 
 def _validate_initial_condition(scenario: Scenario) -> None:
-    """q_j(s, 0) > ε_j for every obstacle (J(0) > 0 in the proof of claim ii), and y(0) ∈ S."""
+    """q_j(s, 0) > ε_j for every obstacle (J(0) > 0 in the proof of Theorem 3.2 (ii)), and
+    y(0) ∈ S."""
     if scenario.obstacles:
         belief = scenario.belief_at(0.0)
         q = avoid_probability(

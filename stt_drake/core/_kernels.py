@@ -25,10 +25,10 @@ this module — :func:`stt_drake.core.backend.compiled` loads it on first need).
 ``STT_DRAKE_PURE_NUMPY=1`` (or :func:`stt_drake.core.backend.pure_numpy`) selects the reference
 path instead.
 
-Notation (paper Sec. 3, Prop. 1): for Z ~ N(a·e, I_n), a = ‖x − μ_j‖/σ_j, ‖Z‖ is
-noncentral chi with n degrees of freedom; ``sf(b) = P(‖Z‖ ≥ b)`` is q_j of eq. (prob_q)
+Notation (paper Sec. 3, Proposition 3.1): for Z ~ N(a·e, I_n), a = ‖x − μ_j‖/σ_j, ‖Z‖ is
+noncentral chi with n degrees of freedom; ``sf(b) = P(‖Z‖ ≥ b)`` is q_j of Eq. (5)
 at b = (r_o + r_min)/σ, and the quantile s with sf(s) = ε gives d̂_j = σ s − r_o
-(eq. m_crv).
+(Eq. (8)).
 """
 
 from __future__ import annotations
@@ -392,7 +392,7 @@ def _sankaran_start(eps: float, a: float, n: int) -> float:
 
 @njit(**_JIT)
 def chi_isf(eps: float, a: float, n: int) -> float:
-    """The s ≥ 0 with P(‖Z‖ ≥ s) = ε for Z ~ N(a e, I_n), n ∈ {1, 2, 3} (eq. m_crv).
+    """The s ≥ 0 with P(‖Z‖ ≥ s) = ε for Z ~ N(a e, I_n), n ∈ {1, 2, 3} (Eq. (8)).
 
     Halley's iteration on g(s) = sf(s) − ε (g' = −f, g'' = −f·d ln f/ds), started from
     :func:`_sankaran_start` and kept inside a bracket that is valid from the start:
@@ -599,13 +599,13 @@ def tube_step(
 ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
     """One tube-law evaluation (:meth:`stt_drake.core.tube.TubeLaw.evaluate`) in one pass.
 
-    Per obstacle j: q_j (eq. prob_q; with `reach`/`spread` the period lower bound of
-    :func:`period_avoid_probability`, empty arrays = exact), d̂_j (eq. m_crv, always at the
+    Per obstacle j: q_j (Eq. (5); with `reach`/`spread` the period lower bound of
+    :func:`period_avoid_probability`, empty arrays = exact), d̂_j (Eq. (8), always at the
     exact belief; the quantile is skipped where the bound σ(a − Φ⁻¹(ε)) − r_o already
-    exceeds `prune_above`, and that bound is returned), θ_j, m_j, v_j; then ċ (eq.
-    cen_dynamic) saturated at max_center_speed, or the recovery velocity when some
+    exceeds `prune_above`, and that bound is returned), θ_j, m_j, v_j; then ċ
+    (Eq. (4)) saturated at max_center_speed, or the recovery velocity when some
     q_j ≤ ε_j: max_center_speed along Σ_j (c − μ_j)/‖c − μ_j‖ over those j, the direction
-    that increases them fastest; and the soft-min radius (eq. rad_sol). `k2`, `k3` hold one
+    that increases them fastest; and the soft-min radius (Eq. (14)). `k2`, `k3` hold one
     gain per obstacle or a single one; `circulation` (m, 3) the chosen axes ω_j in 3D (or
     empty); `constants` is laid out as :data:`TUBE_CONSTANTS` followed by η (few
     arguments: numba's dispatch costs per argument).
@@ -852,7 +852,7 @@ def tube_advance(
         if acting:
             for i in range(n):
                 candidate[i] = position[i] + step * rate[i]
-        else:  # the exact attraction flow (eq. cen_simplified), capped at max_speed·step
+        else:  # the exact attraction flow (Eq. (13)), capped at max_speed·step
             length = 0.0
             for i in range(n):
                 e = target[i] - position[i]
@@ -1040,7 +1040,7 @@ def carry_circulation(
 
 @njit(**_JIT)
 def soft_min_radius(d_hat: np.ndarray, r_max: float, nu: float) -> float:
-    """r = −(1/ν) ln(e^{−ν r_max} + Σ_j e^{−ν d̂_j}) (eq. rad_sol), shifted by the minimum;
+    """r = −(1/ν) ln(e^{−ν r_max} + Σ_j e^{−ν d̂_j}) (Eq. (14)), shifted by the minimum;
     NaN if any d̂_j is NaN."""
     smallest = r_max
     for j in range(d_hat.shape[0]):
@@ -1214,11 +1214,11 @@ def funnel_control(
     funnel_rate: np.ndarray,
     saturation: float,
 ) -> tuple[np.ndarray, np.ndarray, bool]:
-    """The funnel law of Sec. 5 (:meth:`stt_drake.core.control.FunnelController.evaluate`).
+    """The funnel law of Sec. 4 (:meth:`stt_drake.core.control.FunnelController.evaluate`).
 
-    Stage 1: e₁ = ‖x₁ − c‖/r, r₂ = −κ₁ ρ(e₁)(x₁ − c) (eq. Control_ras a). Stage k ≥ 2:
+    Stage 1: e₁ = ‖x₁ − c‖/r, r₂ = −κ₁ ρ(e₁)(x₁ − c) (Eq. (20a)). Stage k ≥ 2:
     γ = (p − q)e^{−μt} + q, e_k = (x_k − r_k)/γ, ξ = 4/(γ(1 − e_k²)), r_{k+1} = −κ_k ξ ρ(e_k)
-    (eq. stage k). `states` is [x_1; …; x_N] flat; the funnel arrays are (N − 1, n).
+    (Eqs. (19a)–(19c)). `states` is [x_1; …; x_N] flat; the funnel arrays are (N − 1, n).
 
     Returns:
         (u = r_{N+1} (n,), normalised errors [e₁, e₂ (n), …, e_N (n)] before saturation,

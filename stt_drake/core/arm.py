@@ -4,9 +4,9 @@ Pure numpy: the Drake systems in :mod:`stt_drake.systems.plants.franka` feed it 
 the kinematic Jacobian. The output space is the end-effector (TCP) position y ∈ R³.
 
 The arm q̈ = M(q)⁻¹(τ − C(q, q̇)q̇ − g(q) − D q̇ + τ_ext) is not in the pure-feedback form
-of eq. (sysdyn) in the task-space coordinates, so the law runs in two spaces:
+of Eq. (1) in the task-space coordinates, so the law runs in two spaces:
 
-* **Stage 1** (task space, n = 3, the ball funnel of Sec. 5, reused from
+* **Stage 1** (task space, n = 3, the ball funnel of Sec. 4, reused from
   :class:`stt_drake.core.control.FunnelController`): v_ref = −κ₁ ρ₁ (y − c).
 * **Mapping** (kinematics only): q̇_ref = J⁺_λ v_ref + N z(q), with the damped least-squares
   inverse J⁺_λ = V diag(s/(s² + λ²)) Uᵀ of the translational Jacobian J = U diag(s) Vᵀ and the

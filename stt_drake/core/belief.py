@@ -2,7 +2,7 @@
 
 Obstacle j is the ball B(O_j, r_o_j) with an uncertain centre O_j ~ N(mean_j, sigma_j² I).
 Each obstacle also carries its own task numbers: the minimum avoidance probability
-epsilon_j (Def. 2.2) and the separation level p_d_j of Assumption 3.1.
+epsilon_j (Definition 2.3) and the separation level p_d_j of Assumption 3.
 
 On a port the belief of `count` obstacles in dimension n is one vector, obstacle-major:
 ``[mean (n), sigma, radius, epsilon, p_d]`` for obstacle 0, then obstacle 1, ...
@@ -41,7 +41,7 @@ class ObstacleBelief:
         sigma: (m,) standard deviation of each centre per axis, metres (not a variance).
         radius: (m,) obstacle radius r_o, metres.
         epsilon: (m,) required avoidance probability, in (0, 1].
-        p_d: (m,) separation probability of Assumption 3.1, in (epsilon, 1].
+        p_d: (m,) separation probability of Assumption 3, in (epsilon, 1].
     """
 
     mean: np.ndarray

@@ -1,4 +1,4 @@
-"""The 3D null-space direction v_j of eq. (cen_dynamic) and its circulation axes.
+"""The 3D null-space direction v_j of Eq. (4) and its circulation axes.
 
 In 3D, v_j ⟂ m_j cannot be a continuous function of m_j alone on the whole sphere (the
 hairy-ball theorem), which is why the goal-based choice flipped across the

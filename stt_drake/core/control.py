@@ -1,10 +1,10 @@
-"""Closed-form funnel controller of Sec. 5 for an N-th order pure-feedback system.
+"""Closed-form funnel controller of Sec. 4 for an N-th order pure-feedback system.
 
 Stage 1 (ball funnel around the tube): e₁ = ‖x₁ − c‖/r, ρ₁ = ln((1 + e₁)/(1 − e₁)),
-r₂ = −κ₁ ρ₁ (x₁ − c)  (eq. Control_ras a).
+r₂ = −κ₁ ρ₁ (x₁ − c)  (Eq. (20a)).
 Stage k ≥ 2 (box funnel around the reference r_k): γ_k(t) = (p_k − q_k)e^{−μ_k t} + q_k,
 e_k = (x_k − r_k)/γ_k, ρ_k = ln((1 + e_k)/(1 − e_k)), ξ_k = 4 γ_k⁻¹ (1 − e_k²)⁻¹
-(element-wise, eq. stage k), r_{k+1} = −κ_k ξ_k ρ_k; the control is u = r_{N+1}.
+(element-wise, Eqs. (19a)–(19c)), r_{k+1} = −κ_k ξ_k ρ_k; the control is u = r_{N+1}.
 
 The law reads measured states only: no model parameter of the plant. It never returns
 NaN or inf: a normalised error at or beyond its funnel boundary is saturated just inside
@@ -32,7 +32,7 @@ def transformed_error(normalized_error: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class BoxFunnel:
-    """γ(t) = (start − end)e^{−rate·t} + end per component (stage k ≥ 2 of Sec. 5).
+    """γ(t) = (start − end)e^{−rate·t} + end per component (stage k ≥ 2 of Sec. 4).
 
     Attributes:
         start: (n,) or scalar p > 0, the half-width at t = 0; must contain |x_k(0) − r_k(0)|.
@@ -53,7 +53,7 @@ class BoxFunnel:
 def box_funnel_stage(
     t: float, state: np.ndarray, reference: np.ndarray, funnel: BoxFunnel, kappa: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One stage k ≥ 2 of Sec. 5 (eq. stage k): keep x_k inside the box funnel around r_k.
+    """One stage k ≥ 2 of Sec. 4 (Eq. (19)): keep x_k inside the box funnel around r_k.
 
     e_k = (x_k − r_k)/γ_k(t), ρ_k = ln((1 + e_k)/(1 − e_k)), ξ_k = 4 γ_k⁻¹ (1 − e_k²)⁻¹
     (element-wise), and the next reference r_{k+1} = −κ_k ξ_k ρ_k.

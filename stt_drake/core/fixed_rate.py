@@ -51,8 +51,8 @@ s of the period d̂_j ≥ max(D0_j − sℓ, D_j) with ℓ = ‖c_{k+1} − c_k�
 below that bound for the largest r_{k+1} of :func:`end_radius_bound`; r_{k+1} is the
 soft-min of those per-obstacle limits and of the look-ahead bound at c_{k+1}, and c_{k+1}
 is also pulled back until every certified obstacle's limit is ≥ r_min (so r > 0 by the
-choice of ν, claim iii). Hence r(t) ≤ d̂_j(c(t), t) at every instant (the ball is
-certified, claim ii), and the radius can fall as fast as the centre approaches an obstacle
+choice of ν, Theorem 3.2 (iii)). Hence r(t) ≤ d̂_j(c(t), t) at every instant (the ball is
+certified, Theorem 3.2 (ii)), and the radius can fall as fast as the centre approaches an obstacle
 (the first version required D_j ≥ r_k, which let r fall only by the soft-min slack per
 period and stalled the centre in front of thin barriers at 10-20 Hz).
 """

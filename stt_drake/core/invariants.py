@@ -6,10 +6,10 @@ Pure numpy. A *margin* is positive when a guarantee holds with room to spare:
 name                       margin
 ========================== ========================================================
 output_in_tube             r − ‖y − c‖ (metres): y(t) ∈ Γ(t), Theorem 4.1
-center_avoid_probability   min_j q_j(c) − ε_j: the centre's buffered avoidance (claim ii, part 1)
-tube_avoid_probability     min_j P(‖c − O_j‖ ≥ r_o_j + r) − ε_j: Def. 3 (d) / claim (ii)
-output_avoid_probability   min_j P(‖y − O_j‖ ≥ r_o_j) − ε_j: the PrT-RAS task, Def. 2.2
-radius_positive            r (metres): claim (iii)
+center_avoid_probability   min_j q_j(c) − ε_j: buffered centre avoidance, Theorem 3.2 (ii) part 1
+tube_avoid_probability     min_j P(‖c − O_j‖ ≥ r_o_j + r) − ε_j: Eq. (3d) / Theorem 3.2 (ii)
+output_avoid_probability   min_j P(‖y − O_j‖ ≥ r_o_j) − ε_j: the PrT-RAS task, Definition 2.3
+radius_positive            r (metres): Theorem 3.2 (iii)
 ========================== ========================================================
 
 The tube sits on its ε level set by design, so a margin may be 0 up to rounding; a

@@ -2,11 +2,11 @@
 
 All functions are vectorised over obstacles j. With Z = (x − O_j)/sigma_j ~ N(a e, I_n),
 a = ‖x − mean_j‖/sigma_j, the squared norm ‖Z‖² is noncentral chi-square with n degrees of
-freedom and noncentrality λ = a² (Proposition 1). So
+freedom and noncentrality λ = a² (Proposition 3.1). So
 
-* the avoidance probability of a point, P(‖x − O_j‖ ≥ R) (eq. q_F / q_hat), is the
+* the avoidance probability of a point, P(‖x − O_j‖ ≥ R) (Eqs. (6) and (9)), is the
   *survival function* of χ'²_n(λ) at (R/sigma)² — computed directly, never as 1 − CDF;
-* the quantile distance d̂_j (eq. m_crv) is sigma·sqrt(F⁻¹(1 − ε; λ)) − r_o, the largest
+* the quantile distance d̂_j (Eq. (8)) is sigma·sqrt(F⁻¹(1 − ε; λ)) − r_o, the largest
   ball radius around x that the obstacle still misses with probability ≥ ε.
 
 Two implementations (selected by :mod:`stt_drake.core.backend`):
@@ -131,10 +131,10 @@ def _numpy_chi_isf(probability: np.ndarray, offset: np.ndarray, dimension: int) 
 def avoid_probability(
     point: np.ndarray, mean: np.ndarray, sigma: np.ndarray, radius: np.ndarray
 ) -> np.ndarray:
-    """P(‖point − O_j‖ ≥ radius_j) for O_j ~ N(mean_j, sigma_j² I) (Prop. 1, eq. q_F).
+    """P(‖point − O_j‖ ≥ radius_j) for O_j ~ N(mean_j, sigma_j² I) (Proposition 3.1, Eq. (6)).
 
-    With radius = r_o + r_min this is q_j of eq. (prob_q); with radius = r_o it is q̂_j of
-    eq. (q_hat); with radius = r_o + r it is the avoidance probability of the ball B(point, r).
+    With radius = r_o + r_min this is q_j of Eq. (5); with radius = r_o it is q̂_j of
+    Eq. (9); with radius = r_o + r it is the avoidance probability of the ball B(point, r).
 
     Args:
         point: (n,) one point, or (m, n) one point per obstacle.
@@ -162,7 +162,7 @@ def ball_avoid_probability(
 
     P(‖center − O_j‖ ≥ radius_j + ball_radius): the ball misses obstacle j.
 
-    This is the tube's avoidance probability of Definition 3 (d).
+    This is the tube's avoidance probability of Definition 2.5, Eq. (3d).
     """
     return avoid_probability(center, mean, sigma, np.asarray(radius) + ball_radius)
 
@@ -175,7 +175,7 @@ def quantile_distance(
     epsilon: np.ndarray,
     prune_above: float | None = None,
 ) -> np.ndarray:
-    """d̂_j = sigma_j·sqrt(F⁻¹_{χ'²_n}(1 − ε_j; λ_j)) − r_o_j (eq. m_crv).
+    """d̂_j = sigma_j·sqrt(F⁻¹_{χ'²_n}(1 − ε_j; λ_j)) − r_o_j (Eq. (8)).
 
     The largest r with P(‖point − O_j‖ ≥ r_o_j + r) ≥ ε_j. The (1 − ε) quantile of the CDF
     is computed as the ε upper quantile (isf), so no 1 − ε subtraction happens.
@@ -278,7 +278,7 @@ def segment_quantile_lower_bound(
     reach: np.ndarray,
     spread: np.ndarray,
 ) -> np.ndarray:
-    """A lower bound of d̂_j (eq. m_crv) at every point of the segment [start, end] and for
+    """A lower bound of d̂_j (Eq. (8)) at every point of the segment [start, end] and for
     every belief reachable within the horizon of (reach, spread): the largest r with
     P(‖x − O_j(t)‖ ≥ r_o_j + r) ≥ ε_j for all those x and beliefs.
 

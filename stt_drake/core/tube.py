@@ -1,7 +1,7 @@
 """The spatiotemporal tube law (paper Sec. 3): centre velocity, radius and diagnostics.
 
 One call of :meth:`TubeLaw.evaluate` gives, for the tube centre c and the belief of all
-obstacles, the centre velocity ċ of eq. (cen_dynamic), the radius r of eq. (rad_sol) and
+obstacles, the centre velocity ċ of Eq. (4), the radius r of Eq. (14) and
 per-obstacle diagnostics (q_j, d̂_j, θ_j).
 
 Fixes to the printed paper (see DESIGN.md):
@@ -13,7 +13,7 @@ Bounded centre, and recovery
 ----------------------------
 |ċ| ≤ v_c = ``max_center_speed`` always: the law's ċ is scaled down to v_c when faster.
 Near q_j = ε_j the term k2·θ_j·m_j dominates and points along c − μ_j, so the saturated
-ċ leaves the ε level set at speed v_c: claim (ii) part 1 holds as long as that level set
+ċ leaves the ε level set at speed v_c: Theorem 3.2 (ii), part 1, holds as long as that level set
 does not approach faster than v_c (for a translating obstacle, its speed). When some
 q_j ≤ ε_j already (a belief that jumped, a new obstacle, an obstacle faster than v_c) the
 law is in *recovery*: ċ = v_c·u/‖u‖ with u = Σ_{j: q_j ≤ ε_j} (c − μ_j)/‖c − μ_j‖, the
@@ -50,7 +50,7 @@ from stt_drake.core.probability import (
 
 
 def minimum_nu(obstacle_count: int, r_min: float) -> float:
-    """Smallest ν for which the soft-min radius is provably positive (claim iii).
+    """Smallest ν for which the soft-min radius is provably positive (Theorem 3.2 (iii)).
 
     Every d̂_j > r_min while q_j > ε_j, so r ≥ r_min − ln(n_o + 1)/ν.
     """
@@ -65,7 +65,7 @@ def default_nu(obstacle_count: int, r_min: float) -> float:
 def signed_cube_root_attraction(
     error: np.ndarray, k1: float, linear_zone: float = 0.0
 ) -> np.ndarray:
-    """k1·sign(e)|e|^{1/3} per component: the finite-time attraction of eq. (cen_dynamic).
+    """k1·sign(e)|e|^{1/3} per component: the finite-time attraction of Eq. (4).
 
     The cube root is not Lipschitz at e = 0: an error-controlled integrator chatters
     around η with ever smaller steps (measured: 3100 steps/s once c reached η). Within
@@ -86,7 +86,7 @@ def linear_zone_for_step(k1: float, max_step: float) -> float:
 
 
 def attraction_flow(error: np.ndarray, k1: float, duration: float) -> np.ndarray:
-    """Exact change of c over `duration` under ċ = k1·cbrt(η − c) alone (eq. cen_simplified).
+    """Exact change of c over `duration` under ċ = k1·cbrt(η − c) alone (Eq. (13)).
 
     Per component, |e|^{2/3} decreases linearly at rate 2k1/3 until it reaches 0, so the
     flow never overshoots η, whatever the step.
@@ -105,12 +105,12 @@ class TubeEvaluation:
     """Everything the tube law gives at one instant.
 
     Attributes:
-        center_rate: (n,) ċ of eq. (cen_dynamic) saturated at max_center_speed, or the
+        center_rate: (n,) ċ of Eq. (4) saturated at max_center_speed, or the
             recovery velocity, m/s.
-        radius: r of eq. (rad_sol), metres.
-        avoid_probability: (m,) q_j(c, t) of eq. (prob_q) (its period lower bound when the
+        radius: r of Eq. (14), metres.
+        avoid_probability: (m,) q_j(c, t) of Eq. (5) (its period lower bound when the
             law was evaluated with a horizon).
-        quantile_distance: (m,) d̂_j of eq. (m_crv), metres (a lower bound where pruned).
+        quantile_distance: (m,) d̂_j of Eq. (8), metres (a lower bound where pruned).
         theta: (m,) switching gains θ_j (at their largest in-law value 1/ε_j − 1/p_d_j
             where q_j ≤ ε_j: the recovery velocity does not use them).
     """
@@ -124,7 +124,7 @@ class TubeEvaluation:
 
 @dataclass(frozen=True)
 class TubeLaw:
-    """Centre and radius law of the STT (eqs. cen_dynamic, prob_q, m_crv, rad_sol).
+    """Centre and radius law of the STT (Eqs. (4), (5), (8) and (14)).
 
     Attributes:
         target: (n,) η, the point the centre is pulled to.
@@ -133,7 +133,7 @@ class TubeLaw:
         k3: gain along v_j ⟂ m_j (≥ 0), scalar or one per obstacle.
         r_min: buffer added to each obstacle radius in q_j (> 0).
         r_max: largest tube radius (> r_min).
-        nu: soft-min sharpness; must exceed ln(n_o + 1)/r_min for claim (iii).
+        nu: soft-min sharpness; must exceed ln(n_o + 1)/r_min for Theorem 3.2 (iii).
         linear_zone: δ of :func:`signed_cube_root_attraction` (metres; 0 = exact cube root).
         max_center_speed: v_c, the bound on |ċ| and the recovery speed (m/s). Infinite
             means unbounded: a recovery then has no finite speed and its ċ is not finite
@@ -151,7 +151,7 @@ class TubeLaw:
     max_center_speed: float = math.inf
 
     def radius(self, quantile_distance: np.ndarray) -> float:
-        """Soft-min radius r = −(1/ν) ln(e^{−ν r_max} + Σ e^{−ν d̂_j}) (eq. rad_sol).
+        """Soft-min radius r = −(1/ν) ln(e^{−ν r_max} + Σ e^{−ν d̂_j}) (Eq. (14)).
 
         Shifted by the hard minimum before exponentiating, so nothing under/overflows.
         """

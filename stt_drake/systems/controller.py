@@ -1,4 +1,4 @@
-"""STTController: the closed-form funnel law of Sec. 5 as a stateless Drake system."""
+"""STTController: the closed-form funnel law of Sec. 4 as a stateless Drake system."""
 
 from __future__ import annotations
 

@@ -33,7 +33,7 @@ class SpatiotemporalTube(LeafSystem):
 
     Two modes:
 
-    * continuous (``update_period=None``): c is continuous state, ċ from eq. (cen_dynamic)
+    * continuous (``update_period=None``): c is continuous state, ċ from Eq. (4)
       (|ċ| ≤ max_center_speed, recovery where q_j ≤ ε_j) integrated by the Simulator with
       error control and a bounded max step (the scenarios' default SimulatorConfig);
       recovery is q_j(c) ≤ ε_j.

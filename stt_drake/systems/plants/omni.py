@@ -7,7 +7,7 @@ proportional stabiliser (the heading is not part of the output space). The plant
 :class:`OmniRobot` integrates the *true* kinematics, which differ from the nominal ones, plus
 an additive velocity disturbance. The closed loop therefore sees ẏ = g·u + w with an
 unknown g (= true/nominal wheel radius ratio) and unknown w — the pure-feedback form of
-eq. (sysdyn) that the controller must handle without knowing either.
+Eq. (1) that the controller must handle without knowing either.
 """
 
 from __future__ import annotations

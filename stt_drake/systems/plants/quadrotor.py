@@ -1,12 +1,12 @@
 """UAV (case study 2): a quadrotor as a second-order point mass in 3D.
 
-State x = [p (3), v (3)] (the stage states x_1 = p, x_2 = v of eq. (sysdyn), N = 2):
+State x = [p (3), v (3)] (the stage states x_1 = p, x_2 = v of Eq. (1), N = 2):
 
     ṗ = v,
     m·v̇ = u − m·g·e_z − c_d·v + w(t),
 
 where u ∈ R³ is the commanded force (N) — the thrust vector an attitude loop realises — and
-w(t) a bounded wind force (N). In the pure-feedback form of eq. (sysdyn): f_1 = 0,
+w(t) a bounded wind force (N). In the pure-feedback form of Eq. (1): f_1 = 0,
 g_1 = I, f_2 = −g e_z − (c_d/m) v, g_2 = I/m (positive definite, Assumption 2), w_2 = w/m.
 The true mass m, drag coefficient c_d and gravity g live only here: the STT controller
 reads the measured stage states [p, v] and nothing else.
