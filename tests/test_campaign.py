@@ -415,6 +415,28 @@ def test_bad_input_exits_2_naming_the_field(args, message, tmp_path, capsys):
     assert message in capsys.readouterr().err
 
 
+def test_randomisation_without_a_random_field_is_bad_input_even_if_run_0_is_rejected(
+    tmp_path, capsys
+):
+    """A file with no random field whose fixed obstacle breaks the initial avoidance
+    condition: before, run 0's rejected draw skipped the random-field check and every draw
+    was rejected; the check now reads the parsed file, before anything is drawn."""
+    blocked = tmp_path / "blocked.yaml"
+    blocked.write_text(
+        "start: [0.0, 0.0]\ninitial_set_radius: 0.5\ntarget: [4.0, 0.0]\n"
+        "target_set_radius: 0.5\nduration: 2.0\n"
+        "tube: {r_min: 0.1, r_max: 0.4, k1: 0.5, k2: 0.4, k3: 0.4, max_center_speed: 0.3}\n"
+        "obstacles:\n"
+        "  - motion: !ConstantVelocity {start: [0.05, 0.0], velocity: [0.0, 0.0]}\n"
+        "    radius: 0.3\n    sigma: 0.1\n    epsilon: 0.9\n    p_d: 0.9999\n"
+    )
+    args = ["campaign", str(blocked), "--runs", "3", "--kind", "randomisation"]
+    assert main([*args, "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "scenario.random_obstacles" in err and "needs a random_obstacles" in err
+    assert not (tmp_path / "out" / "runs.jsonl").exists()
+
+
 def test_bad_scenario_field_exits_2_without_traceback(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text(RANDOM.read_text().replace("r_min: 0.21", "r_min: 0.5"))

@@ -163,24 +163,25 @@ def _check_resumable(out_dir: Path, spec: CampaignSpec, text_hash: str, resume: 
 
 def _load_checked_scenario(spec: CampaignSpec, text: str, name: str) -> Any:
     """The scenario as the campaign sees it (kind 1: the file's seed; kind 2: run 0's draw,
-    only to reject bad input up front)."""
-    from stt_drake.build import parse_scenario
-    from stt_drake.config import AssumptionError, ScenarioError, has_random_field
+    only to reject bad input up front, None when that draw is rejected). The YAML is parsed
+    once; a randomisation campaign must have a random field (checked on the parsed file,
+    before anything is drawn)."""
+    from stt_drake.build import prepare_scenario
+    from stt_drake.config import AssumptionError, ScenarioError, has_random_field, parse_schema
 
     randomising = spec.kind == "randomisation"
-    seed = run_seed(spec.seed, 0) if randomising else None
     try:
-        scenario = parse_scenario(text, default_name=name, seed=seed)
+        schema = parse_schema(text, name)
+        if randomising and not has_random_field(schema.random_obstacles):
+            raise CampaignError(
+                "scenario.random_obstacles: a randomisation campaign needs a random_obstacles "
+                "section with count > 0 or a count_range"
+            )
+        return prepare_scenario(schema, run_seed(spec.seed, 0) if randomising else None)
     except ScenarioError as error:
         if randomising and isinstance(error, AssumptionError):
             return None
         raise CampaignError(f"bad scenario {spec.scenario}: {error}") from None
-    if randomising and not has_random_field(scenario.random_obstacles):
-        raise CampaignError(
-            "scenario.random_obstacles: a randomisation campaign needs a random_obstacles "
-            "section with count > 0 or a count_range"
-        )
-    return scenario
 
 
 def run_campaign(

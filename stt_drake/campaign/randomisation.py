@@ -9,26 +9,30 @@ from __future__ import annotations
 
 import re
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from stt_drake.config import Scenario
 
 FAILURES_DIR = "failures"
 
 
-def randomisation_run(text: str, name: str, index: int, seed: int) -> dict[str, Any]:
-    """Load the scenario with `seed` (redrawing its random field), simulate, check.
+def randomisation_run(schema: Scenario, index: int, seed: int) -> dict[str, Any]:
+    """Complete the parsed scenario `schema` with `seed` (redrawing its random field),
+    simulate, check.
 
     Record: ``{"run", "seed", "status"}`` with status ``rejected`` (the draw breaks the
     paper's assumptions; `reason`), ``error`` (the simulation raised; `reason`) or
     ``simulated`` (then `obstacles`, `reached`, `t_reach`, `holds`, `success` and
     `invariants` as in metrics.json).
     """
-    from stt_drake.build import parse_scenario
+    from stt_drake.build import prepare_scenario
     from stt_drake.config import AssumptionError
     from stt_drake.run import simulate
 
     record: dict[str, Any] = {"run": index, "seed": seed}
     try:
-        scenario = parse_scenario(text, default_name=name, seed=seed)
+        scenario = prepare_scenario(schema, seed)
     except AssumptionError as error:
         return {**record, "status": "rejected", "reason": str(error)}
     try:
@@ -51,8 +55,12 @@ def randomisation_run(text: str, name: str, index: int, seed: int) -> dict[str, 
 def randomisation_task(
     text: str, name: str, runs: Sequence[tuple[int, int]]
 ) -> list[dict[str, Any]]:
-    """One executor task: the records of a batch of (run index, seed)."""
-    return [randomisation_run(text, name, index, seed) for index, seed in runs]
+    """One executor task: the records of a batch of (run index, seed), the YAML parsed once
+    for the batch (the schema holds Drake objects that do not pickle, so the text travels)."""
+    from stt_drake.config import parse_schema
+
+    schema = parse_schema(text, name)
+    return [randomisation_run(schema, index, seed) for index, seed in runs]
 
 
 def draw_failed(record: dict[str, Any]) -> bool:
