@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +15,6 @@ from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 from stt_drake.build.diagram import SttDiagram, build_diagram
 from stt_drake.build.feasibility import scenario_warnings
 from stt_drake.config import Scenario
-from stt_drake.core.arm import summarize_arm
 from stt_drake.core.invariants import HOLDS_TOLERANCE, InvariantTracker, reach_story
 from stt_drake.runlog import RunLog
 from stt_drake.story import (
@@ -39,6 +38,8 @@ class RunResult:
 
     metrics: dict[str, Any]
     log: RunLog
+    #: The plant's own summary lines (its `summary` hook, e.g. the arm's tasks and limits).
+    plant_summary: list[str] = field(default_factory=list)
 
     @property
     def success(self) -> bool:
@@ -206,7 +207,8 @@ def simulate(scenario: Scenario, strict: bool | None = None) -> RunResult:
         "obstacles": obstacle_report(log, scenario),
         **plant_metrics,
     }
-    return RunResult(metrics, log)
+    plant_summary = built.plant_summary(metrics) if built.plant_summary is not None else []
+    return RunResult(metrics, log, plant_summary)
 
 
 def write_outputs(result: RunResult, out_dir: Path, figures: bool = True) -> list[Path]:
@@ -310,9 +312,6 @@ def summary(result: RunResult) -> str:
             f"    #{o['index']:<3} {o['min_distance_to_mean']:.3f} m  σ = {o['sigma']:.3f} m  "
             f"ε = {o['epsilon']:.3f}"
         )
-    arm = summarize_arm(m)
-    if arm:
-        lines.append("  tasks, joint limits and jerks:")
-        lines += arm
+    lines += result.plant_summary
     lines.append("  result: " + ("SUCCESS" if result.success else "FAILURE"))
     return "\n".join(lines)

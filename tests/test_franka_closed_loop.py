@@ -24,7 +24,7 @@ from stt_drake.build import load_scenario, parse_scenario
 from stt_drake.cli.main import main
 from stt_drake.core.invariants import HOLDS_TOLERANCE
 from stt_drake.plotting import level_set_radius
-from stt_drake.run import simulate
+from stt_drake.run import simulate, summary
 
 SCENARIOS = ["franka_pick_place_case1", "franka_pick_place_case2", "franka_disturbance"]
 DIAGRAMS = Path(__file__).resolve().parent.parent / "diagrams"
@@ -185,3 +185,17 @@ def test_cli_writes_the_contract_figures_and_an_arm_replay(tmp_path):
             hand[".quaternion"][frame], np.array([0.0, 0.0, 0.1034])
         )
         assert np.min(np.linalg.norm(log["output"] - tcp, axis=1)) < 1e-6
+
+
+def test_the_run_summary_lists_the_arms_tasks_from_its_plant_hook(run_scenario):
+    """The arm's summary lines come from its plant builder's `summary` hook (run.py knows no
+    plant): one line per task segment with its t_c, one per limit, one per jerk."""
+    result = run_scenario("franka_disturbance")
+    text = summary(result)
+    assert "tasks, joint limits and jerks:" in text
+    for segment in result.metrics["segments"]:
+        assert f"segment {segment['index']} → " in text
+    assert len(result.metrics["jerks"]) >= 1
+    assert text.count("    jerk ") == len(result.metrics["jerks"])
+    for name in result.metrics["limits"]:
+        assert f"    {name:<16} " in text

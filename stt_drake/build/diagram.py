@@ -23,6 +23,7 @@ from stt_drake.core.arm import (
     ArmLimits,
     JerkWindow,
     arm_metrics,
+    summarize_arm,
 )
 from stt_drake.systems.belief_source import ObstacleBeliefSource
 from stt_drake.systems.monitor import InvariantMonitor
@@ -53,7 +54,7 @@ class PlantHandles:
     `tube`, output `target`) for a sequence of reach-avoid-stay tasks; `logged`, more
     signals to log (log name → port); `log_constants`, constants added to the run log (e.g.
     joint limits); `report`, plant-specific metrics computed from the run log (merged into
-    metrics.json)."""
+    metrics.json); `summary`, the plant's lines of the run summary from metrics.json."""
 
     plant: LeafSystem
     control_input: object  # an InputPort
@@ -64,6 +65,7 @@ class PlantHandles:
     logged: dict[str, OutputPort] = field(default_factory=dict)
     log_constants: dict[str, np.ndarray] = field(default_factory=dict)
     report: Callable[[Mapping[str, np.ndarray]], dict[str, Any]] | None = None
+    summary: Callable[[Mapping[str, Any]], list[str]] | None = None
 
 
 @dataclass
@@ -81,6 +83,7 @@ class SttDiagram:
     extra_logs: tuple[str, ...] = ()
     log_constants: dict[str, np.ndarray] = field(default_factory=dict)
     plant_report: Callable[[Mapping[str, np.ndarray]], dict[str, Any]] | None = None
+    plant_summary: Callable[[Mapping[str, Any]], list[str]] | None = None
 
 
 def add_omni_robot(builder: DiagramBuilder, scenario: Scenario) -> PlantHandles:
@@ -273,6 +276,7 @@ def add_franka(builder: DiagramBuilder, scenario: Scenario) -> PlantHandles:
             targets=targets,
             target_set_radius=scenario.target_set_radius,
         ),
+        summary=summarize_arm,
     )
 
 
@@ -341,4 +345,5 @@ def build_diagram(scenario: Scenario) -> SttDiagram:
         extra_logs=tuple(extra),
         log_constants=dict(plant.log_constants),
         plant_report=plant.report,
+        plant_summary=plant.summary,
     )

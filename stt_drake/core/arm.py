@@ -322,7 +322,8 @@ def segment_report(
 
 
 def summarize_arm(metrics: Mapping[str, Any]) -> list[str]:
-    """Summary lines for the arm's extra metrics (segments, limits, jerks)."""
+    """Summary lines for the arm's extra metrics (segments, limits, jerks), under a heading;
+    none without them."""
     lines = []
     for segment in metrics.get("segments", []):
         reach = segment["t_reach"]
@@ -343,4 +344,4 @@ def summarize_arm(metrics: Mapping[str, Any]) -> list[str]:
             f"peak max|e₂| = {jerk['peak_stage2_error']:.3f}, "
             f"peak ‖y − c‖ = {jerk['peak_offset_from_center'] * 100:.1f} cm"
         )
-    return lines
+    return ["  tasks, joint limits and jerks:", *lines] if lines else []
