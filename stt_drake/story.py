@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from stt_drake.config import Scenario
-from stt_drake.core.probability import avoid_probability
+from stt_drake.config.assumptions import SEPARATION_CHECKPOINTS, target_separation
 from stt_drake.runlog import RunLog
 
 #: Relative slack on the rate bounds when looking for a belief discontinuity (a smooth
@@ -150,15 +150,17 @@ def separation_after_entry(
 
 
 def target_separation_violations(
-    scenario: Scenario, checkpoints: int = 200
+    scenario: Scenario, checkpoints: int = SEPARATION_CHECKPOINTS
 ) -> list[dict[str, Any]]:
     """Assumption 3 at the target, checked on the scenario before a run.
 
     For each obstacle, q_j(η, t) = P(‖η − O_j(t)‖ ≥ r_o_j + r_min) is evaluated at
-    `checkpoints` times evenly over [0, duration] (η: the scenario's final target). An
-    obstacle for which q_j(η, t) < p_d_j still at the last checkpoint is within p_d of the
-    target at the end, so no t_1 exists: the assumption cannot hold. (A random field's
-    draws are kept only if they satisfy it, see :class:`stt_drake.config.RandomObstacles`.)
+    `checkpoints` times evenly over [0, duration] (η: the scenario's final target,
+    :func:`stt_drake.config.assumptions.target_separation`). An obstacle for which
+    q_j(η, t) < p_d_j still at the last checkpoint is within p_d of the target at the end,
+    so no t_1 exists: the assumption cannot hold. (One that is there at every checkpoint is
+    refused when the scenario is loaded, and a random field's draws are kept only if they
+    satisfy it, see :class:`stt_drake.config.RandomObstacles`.)
 
     Returns:
         One `assumptions` record per such obstacle: `assumption` ("3"), `obstacle`, `t`
@@ -167,15 +169,8 @@ def target_separation_violations(
     """
     if not scenario.obstacles:
         return []
-    times = np.linspace(0.0, scenario.duration, max(int(checkpoints), 2))
-    target = np.asarray(scenario.target, dtype=float)
-    q = np.empty((times.size, len(scenario.obstacles)))
-    for k, time in enumerate(times):
-        belief = scenario.belief_at(float(time))
-        q[k] = avoid_probability(
-            target, belief.mean, belief.sigma, belief.radius + scenario.tube.r_min
-        )
-    p_d = scenario.belief_at(float(times[-1])).p_d
+    separation = target_separation(scenario, checkpoints)
+    times, q, p_d = separation.times, separation.q, separation.p_d
     records = []
     for j in np.flatnonzero(q[-1] < p_d):
         clear = np.flatnonzero(q[:, j] >= p_d[j])

@@ -22,6 +22,7 @@ from scipy.stats import ncx2
 from stt_drake.core.probability import (
     avoid_probability,
     ball_avoid_probability,
+    noncentral_chi_isf,
     noncentral_chi_sf,
     quantile_distance,
 )
@@ -314,8 +315,8 @@ def test_q_is_non_increasing_in_collision_radius(n, distance, r1, r2, sigma):
 
 
 # Offsets a = D/σ up to 1e5 (λ up to 1e10). Beyond a ≈ 2e5 the Boost series behind the
-# n = 2, 4, 5 kernel stops converging near b ≈ a (it warns and returns wrong values): a
-# known limit of the kernel, reported to the lead, not covered here.
+# n = 2, 4, 5 kernel stops converging near b ≈ a (it warns and returns wrong values); the
+# numpy reference takes its large-offset forms from LARGE_OFFSET = 1e5 on (tested below).
 @HYPOTHESIS
 @given(
     n=dims,
@@ -509,3 +510,33 @@ def test_quantile_distance_pruning_skips_far_obstacles_only():
     bound = 0.2 * (50.0 / 0.2 - special.ndtri(0.9)) - 0.1
     assert pruned[1] == pytest.approx(bound, rel=1e-14)
     assert 2.0 < pruned[1] <= exact[1]
+
+
+# --------------------------------------------------------------------------- large offsets
+
+
+@pytest.mark.parametrize("n", [2, 3])
+@pytest.mark.parametrize("a", [1e5, 3e5, 1e6])
+def test_numpy_reference_is_finite_and_accurate_at_large_offsets(n, a):
+    """σ tiny against the distance (a = D/σ ≥ LARGE_OFFSET): Boost's and cdflib's series
+    returned NaN or wrong values there (the "non-finite tube law" of σ = 1e-6). The numpy
+    reference now matches the compiled kernel's exact sf to 1e-10, and its quantile is the
+    conservative lower bound a − Φ⁻¹(ε), at most (n − 1)/(2a) below the exact one."""
+    from stt_drake.core import backend
+    from stt_drake.core.probability import LARGE_OFFSET
+
+    assert a >= LARGE_OFFSET
+    b = a + np.array([-8.0, -3.0, -1.0, 0.0, 0.5, 1.0, 3.0, 8.0, 30.0])
+    offsets = np.full(b.shape, a)
+    eps = np.array([1e-6, 0.01, 0.5, 0.9, 0.9999, 1.0 - 1e-9])
+    with backend.pure_numpy(False):
+        sf_exact = noncentral_chi_sf(b, offsets, n)
+        isf_exact = noncentral_chi_isf(eps, np.full(eps.shape, a), n)
+    with backend.pure_numpy():
+        sf = noncentral_chi_sf(b, offsets, n)
+        isf = noncentral_chi_isf(eps, np.full(eps.shape, a), n)
+    assert np.all(np.isfinite(sf)) and np.all(np.isfinite(isf))
+    np.testing.assert_allclose(sf, sf_exact, rtol=0, atol=1e-10)
+    below = isf_exact - isf
+    assert np.all(below >= -1e-9), below
+    assert np.all(below <= (n - 1) / (2.0 * a) * (1.0 + 1e-3) + 1e-9), below

@@ -605,6 +605,7 @@ def test_start_of_the_wrong_dimension_is_named_before_random_obstacles_are_drawn
 def test_tagged_motion_written_as_text_loads():
     text = dump({k: v for k, v in scenario_dict().items() if k != "obstacles"}) + (
         "obstacles:\n  - motion: !ConstantVelocity {start: [3, 3], velocity: [0, 0]}\n"
+        "    sigma: 0.1\n    epsilon: 0.9\n    p_d: 0.9999\n"
     )
     scenario = parse_scenario(text)
     assert scenario.obstacles[0].motion.start == [3.0, 3.0]
@@ -617,7 +618,13 @@ def test_tagged_motion_written_as_text_loads():
 def test_start_inside_an_obstacle_fails_the_initial_avoidance_condition():
     obstacles = [
         *_far_obstacles(1),
-        {"motion": cv([0.5, 0.5], [0.0, 0.0]), "radius": 0.2, "sigma": 0.1, "epsilon": 0.9},
+        {
+            "motion": cv([0.5, 0.5], [0.0, 0.0]),
+            "radius": 0.2,
+            "sigma": 0.1,
+            "epsilon": 0.9,
+            "p_d": 0.9999,
+        },
     ]
     message = assert_rejected(
         scenario_text({("obstacles",): obstacles}), "scenario.start", "initial"
@@ -633,7 +640,13 @@ def test_start_on_the_buffered_boundary_fails_the_initial_avoidance_condition():
     assert q[0] <= epsilon
     changes = {
         ("obstacles",): [
-            {"motion": cv(mean, [0.0, 0.0]), "radius": radius, "sigma": sigma, "epsilon": epsilon}
+            {
+                "motion": cv(mean, [0.0, 0.0]),
+                "radius": radius,
+                "sigma": sigma,
+                "epsilon": epsilon,
+                "p_d": 0.9999,
+            }
         ],
         ("tube", "r_min"): r_min,
     }
@@ -923,3 +936,165 @@ def test_count_and_count_range_together_are_rejected():
 def test_reversed_count_range_is_rejected():
     text = scenario_text(_random(count=0, count_range=[3, 1]))
     assert_rejected(text, "scenario.random_obstacles.count_range", "[low, high]")
+
+
+# --------------------------------------------------------------------------- issue 12 rules
+# (the bad-file corpus is tests/bad_scenarios/, run by tests/test_bad_scenarios.py)
+
+
+@pytest.mark.parametrize(
+    ("changes", "path", "word"),
+    [
+        pytest.param({("tube", "k1"): math.inf}, "scenario.tube.k1", "finite", id="k1-inf"),
+        pytest.param({("tube", "nu"): math.nan}, "scenario.tube.nu", "finite", id="nu-nan"),
+        pytest.param({("start",): [1e308, 1e308]}, "scenario.start[0]", "magnitude", id="start"),
+        pytest.param(
+            {MOTION: cv([2.5, 2.5], [0.0, math.inf])},
+            f"{OBSTACLE0}.motion.velocity[1]",
+            "finite",
+            id="velocity-inf",
+        ),
+        pytest.param(
+            _random(amplitude_range=[0.0, math.inf]),
+            f"{RO}.amplitude_range[1]",
+            "finite",
+            id="amplitude-range-inf",
+        ),
+        pytest.param(
+            {("simulator",): {"integration_scheme": "bogus"}},
+            "scenario.simulator.integration_scheme",
+            "runge_kutta3",
+            id="scheme-lists-the-known-ones",
+        ),
+        pytest.param({("seed",): -1}, "scenario.seed", "[0, 2^63", id="seed-negative"),
+        pytest.param({("name",): "../x"}, "scenario.name", "not a path", id="name-parent"),
+        pytest.param(
+            {("obstacles", 0, "sigma"): 5e-4}, f"{OBSTACLE0}.sigma", "≥ 0.001", id="sigma-tiny"
+        ),
+        pytest.param(
+            {("log_period",): 20.0}, "scenario.log_period", "≤ duration", id="log-period-long"
+        ),
+    ],
+)
+def test_numbers_seeds_names_and_the_simulator_are_checked(changes, path, word):
+    assert_rejected(scenario_text(changes), path, word)
+
+
+def _float_slots(value: object, path: str):
+    """(field path, owner, key) of every float in the schema dataclasses under `value`,
+    list entries included (key: an attribute name or a list index)."""
+    from dataclasses import fields, is_dataclass
+
+    items = []
+    if is_dataclass(value):
+        items = [(f"{path}.{f.name}", f.name, getattr(value, f.name)) for f in fields(value)]
+    elif isinstance(value, list):
+        items = [(f"{path}[{i}]", i, item) for i, item in enumerate(value)]
+    for where, key, child in items:
+        if isinstance(child, float):
+            yield where, value, key
+        else:
+            yield from _float_slots(child, where)
+
+
+def test_every_float_of_the_schema_is_checked_for_finiteness():
+    """The walk covers every float of every dataclass, list entries too (and the simulator
+    config): a NaN planted in each one in turn is refused naming that exact field."""
+    from stt_drake.config.limits import check_numbers
+
+    scenario = parse_scenario(scenario_text(_random(count=2)))
+    paths = [path for path, _, _ in _float_slots(scenario, "scenario")]
+    assert {"scenario.tube.k1", f"{OBSTACLE0}.sigma", "scenario.start[1]"} <= set(paths)
+    assert f"{RO}.frequency_range_hz[1]" in paths
+    for path in paths:
+        broken = copy.deepcopy(scenario)
+        owner, key = {p: (o, k) for p, o, k in _float_slots(broken, "scenario")}[path]
+        if isinstance(key, str):
+            setattr(owner, key, math.nan)
+        else:
+            owner[key] = math.nan
+        with pytest.raises(ScenarioError, match=re.escape(path) + ": must be finite"):
+            check_numbers(broken, "scenario")
+    broken = copy.deepcopy(scenario)
+    broken.simulator.accuracy = math.nan
+    with pytest.raises(ScenarioError, match=r"scenario\.simulator\.accuracy: must be finite"):
+        check_numbers(broken, "scenario")
+
+
+def test_missing_safety_fields_are_required_not_defaulted():
+    obstacles = copy.deepcopy(BASE["obstacles"])
+    for name in ("sigma", "epsilon", "p_d"):
+        obstacle = {k: v for k, v in obstacles[0].items() if k != name}
+        text = scenario_text({("obstacles",): [*obstacles, *obstacles, obstacle]})
+        message = assert_rejected(text, f"scenario.obstacles[2].{name}", "required")
+        assert message.startswith(f"scenario.obstacles[2].{name}: required (")
+    # A sigma_schedule stands in for sigma.
+    scheduled = {k: v for k, v in obstacles[0].items() if k != "sigma"}
+    scheduled["sigma_schedule"] = {"times": [0.0, 5.0], "values": [0.1, 0.2]}
+    assert parse_scenario(scenario_text({("obstacles",): [scheduled]})).obstacles
+    # A random field that draws nothing needs no ranges.
+    assert parse_scenario(scenario_text({RANDOM: {"count": 0}})).random_obstacles.count == 0
+    for name in ("sigma_range", "epsilon_range", "p_d"):
+        spec = {k: v for k, v in RANDOM_BASE.items() if k != name}
+        assert_rejected(scenario_text({RANDOM: spec}), f"{RO}.{name}", "required")
+
+
+def test_duplicate_keys_are_refused_but_merges_and_aliases_are_not_duplicates():
+    text = scenario_text()
+    assert_rejected(text + "duration: 12.0\n", "scenario.duration", "duplicate")
+    # An anchored obstacle reused, and a merge whose key is overridden explicitly.
+    shared = dump({k: v for k, v in scenario_dict().items() if k != "obstacles"}) + (
+        "obstacles:\n"
+        "  - &o {motion: !ConstantVelocity {start: [2.5, 2.5], velocity: [0, 0]},\n"
+        "        radius: 0.2, sigma: 0.1, epsilon: 0.9, p_d: 0.9999}\n"
+        "  - {<<: *o, motion: !ConstantVelocity {start: [3.5, 2.0], velocity: [0, 0]}}\n"
+    )
+    scenario = parse_scenario(shared)
+    assert [o.motion.start for o in scenario.obstacles] == [[2.5, 2.5], [3.5, 2.0]]
+    assert scenario.obstacles[1].sigma == 0.1
+
+
+def test_user_values_are_echoed_short():
+    long_name = "x" * 5000
+    message = assert_rejected(scenario_text({("name",): long_name + "/"}), "scenario.name", "path")
+    assert len(message) < 400
+
+
+def test_default_name_from_the_file_is_made_a_valid_name(tmp_path):
+    data = scenario_dict()
+    del data["name"]
+    path = tmp_path / "my scenario (v2).yaml"
+    path.write_text(dump(data))
+    assert load_scenario(path).name == "my_scenario__v2_"
+
+
+def test_a_negative_seed_override_is_refused(tmp_path):
+    path = tmp_path / "s.yaml"
+    path.write_text(scenario_text())
+    with pytest.raises(ScenarioError, match=r"^seed: must be an integer in \[0, 2\^63"):
+        load_scenario(path, seed=-1)
+
+
+def test_an_obstacle_that_leaves_the_target_is_accepted():
+    """Assumption 3 needs the obstacles to leave the target eventually: one that starts
+    on it and moves away is fine; one that never leaves it is refused."""
+    leaving = {
+        "motion": waypoints([0.0, 4.0], [[4.5, 4.5], [4.5, 8.0]]),
+        "radius": 0.2,
+        "sigma": 0.1,
+        "epsilon": 0.9,
+        "p_d": 0.9999,
+    }
+    assert len(parse_scenario(scenario_text({("obstacles",): [leaving]})).obstacles) == 1
+    staying = {**leaving, "motion": waypoints([0.0, 4.0], [[4.5, 8.0], [4.5, 4.5]])}
+    staying["motion"].fields["positions"] = [[4.5, 4.5], [4.6, 4.5]]
+    assert_rejected(
+        scenario_text({("obstacles",): [staying]}), "scenario.obstacles[0]", "Assumption 3"
+    )
+
+
+def test_scenario_errors_are_one_bounded_line():
+    from stt_drake.config.schema import MAX_MESSAGE_LENGTH
+
+    assert str(ScenarioError("scenario: a\n  b\n\nc")) == "scenario: a b c"
+    assert len(str(ScenarioError("x" * 10 * MAX_MESSAGE_LENGTH))) == MAX_MESSAGE_LENGTH

@@ -12,7 +12,12 @@ import shutil
 import subprocess
 from pathlib import Path
 
-from stt_drake.cli.main import CommandError, add_scenario_arguments, load_scenario_arguments
+from stt_drake.cli.main import (
+    BadInputError,
+    CommandError,
+    add_scenario_arguments,
+    load_scenario_arguments,
+)
 
 
 def write_diagram_pictures(dot_text: str, out_dir: Path, formats: tuple[str, ...]) -> list[Path]:
@@ -41,6 +46,11 @@ def write_diagram_pictures(dot_text: str, out_dir: Path, formats: tuple[str, ...
 def _diagram(args: argparse.Namespace) -> bool:
     from stt_drake.build.diagram import build_diagram
 
+    if args.depth < 0:
+        raise BadInputError(
+            "stt-drake: --depth: must be ≥ 0 (how many levels of nested diagrams to expand) "
+            f"(got {args.depth})"
+        )
     scenario, out_dir = load_scenario_arguments(args)
     diagram = build_diagram(scenario).diagram
     try:

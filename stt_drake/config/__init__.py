@@ -26,6 +26,7 @@ from stt_drake.config.schema import (
     ScenarioError,
     TubeConfig,
 )
+from stt_drake.config.source import read_scenario_file
 from stt_drake.config.validate import validate
 
 __all__ = [
@@ -49,6 +50,7 @@ __all__ = [
     "has_random_field",
     "parse_schema",
     "read_scenario",
+    "read_scenario_file",
     "read_scenario_text",
     "validate",
 ]

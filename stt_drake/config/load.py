@@ -1,6 +1,8 @@
 """Reading a scenario file: YAML text into the :mod:`stt_drake.config.schema` dataclasses,
-unknown keys and type errors reported with their full field path, the random field drawn,
-then :func:`stt_drake.config.validate.validate`."""
+unknown keys, missing required fields and type errors reported with their full field path
+(the bytes and the YAML itself are checked first, :mod:`stt_drake.config.source`), the
+limits of :mod:`stt_drake.config.limits` checked, the random field drawn, then
+:func:`stt_drake.config.validate.validate`."""
 
 import copy
 import typing
@@ -10,9 +12,11 @@ from typing import Any
 import yaml
 from pydrake.common.yaml import yaml_load_typed
 
+from stt_drake.config.limits import check_limits, check_seed
 from stt_drake.config.random_field import expand_random_obstacles
 from stt_drake.config.schema import Scenario, ScenarioError
-from stt_drake.config.validate import validate, validate_dimension
+from stt_drake.config.source import compose_checked, read_scenario_file, short_repr
+from stt_drake.config.validate import name_from_stem, validate, validate_dimension
 
 
 class _TaggedLoader(yaml.SafeLoader):
@@ -92,7 +96,7 @@ def _locate_type_error(schema: Any, data: Any, path: str) -> str | None:
         tag = data.get("__tag__") if isinstance(data, dict) else None
         named = [c for c in classes if c.__name__ == tag]
         schema = named[0] if named else classes[0]
-    got = f" (got {data!r})"
+    got = f" (got {short_repr(data)})"
     if _is_list(schema):
         if not isinstance(data, list):
             return f"{path}: must be a list{got}"
@@ -143,9 +147,7 @@ def read_scenario(path: str | Path, seed: int | None = None) -> Scenario:
     run is reproduced from (file, seed) alone.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ScenarioError(f"{path}: no such scenario file")
-    return read_scenario_text(path.read_text(), default_name=path.stem, seed=seed)
+    return read_scenario_text(read_scenario_file(path), default_name=path.stem, seed=seed)
 
 
 def read_scenario_text(
@@ -155,24 +157,62 @@ def read_scenario_text(
     return complete_scenario(parse_schema(text, default_name), seed)
 
 
+#: Fields an obstacle must give, and what each one is (no invented uncertainty or risk).
+OBSTACLE_REQUIRED = {
+    "sigma": "the standard deviation of the obstacle centre, m; or give sigma_schedule",
+    "epsilon": "the probability ε ∈ (0, 1] with which the tube must avoid the obstacle",
+    "p_d": "the probability p_d ∈ (ε, 1] of Assumption 3, that the obstacle eventually "
+    "leaves the tube alone",
+}
+
+#: Fields a random obstacle field that draws must give.
+RANDOM_REQUIRED = {
+    "sigma_range": "[low, high] of the obstacles' standard deviations, m",
+    "epsilon_range": "[low, high] of the obstacles' avoidance probabilities ε",
+    "p_d": "the probability p_d of Assumption 3 for every drawn obstacle",
+}
+
+
+def _require_fields(data: dict, required: dict[str, str], path: str) -> None:
+    for name, meaning in required.items():
+        if data.get(name) is None:
+            raise ScenarioError(f"{path}.{name}: required ({meaning})")
+
+
+def _check_required(raw: dict) -> None:
+    """The safety fields Drake's loader would fill with a default, found missing in the
+    raw mapping: every obstacle's sigma (unless it has a sigma_schedule), epsilon and p_d;
+    a drawing random field's sigma_range, epsilon_range and p_d."""
+    obstacles = raw.get("obstacles")
+    for i, item in enumerate(obstacles if isinstance(obstacles, list) else []):
+        if isinstance(item, dict):
+            needed = dict(OBSTACLE_REQUIRED)
+            if item.get("sigma_schedule") is not None:
+                del needed["sigma"]
+            _require_fields(item, needed, f"scenario.obstacles[{i}]")
+    spec = raw.get("random_obstacles")
+    if isinstance(spec, dict) and (spec.get("count") not in (None, 0) or spec.get("count_range")):
+        _require_fields(spec, RANDOM_REQUIRED, "scenario.random_obstacles")
+
+
 def parse_schema(text: str, default_name: str = "scenario") -> Scenario:
-    """YAML text → the schema dataclasses, with unknown keys and type errors reported by
-    their field path; nothing drawn, nothing else checked (:func:`complete_scenario` does
-    that, once per seed: a campaign parses its file once and completes a copy per run)."""
-    try:
-        raw = yaml.load(text, Loader=_TaggedLoader)
-    except yaml.YAMLError as error:
-        raise ScenarioError(f"scenario: not valid YAML: {error}") from None
+    """YAML text → the schema dataclasses, with duplicate keys, unknown keys, missing
+    required fields and type errors reported by their field path; nothing drawn, nothing
+    else checked (:func:`complete_scenario` does that, once per seed: a campaign parses its
+    file once and completes a copy per run). A scenario without a `name` is named
+    `default_name`, made a valid name (:func:`stt_drake.config.validate.name_from_stem`)."""
+    raw = compose_checked(text, _TaggedLoader)
     if not isinstance(raw, dict):
         raise ScenarioError("scenario: the file must be a mapping of fields")
     _check_keys(Scenario, raw, "scenario")
+    _check_required(raw)
     try:
         scenario = yaml_load_typed(schema=Scenario, data=text)
-    except (RuntimeError, ValueError, TypeError, AssertionError) as error:
+    except (RuntimeError, ValueError, TypeError, AssertionError, yaml.YAMLError) as error:
         located = _locate_type_error(Scenario, raw, "scenario")
         raise ScenarioError(located or f"scenario: {error}") from None
     if not scenario.name:
-        scenario.name = default_name
+        scenario.name = name_from_stem(default_name)
     return scenario
 
 
@@ -180,10 +220,13 @@ def complete_scenario(schema: Scenario, seed: int | None = None) -> Scenario:
     """A copy of `schema` (from :func:`parse_schema`) with `seed` (when given) in place,
     its random field drawn and every rule of :func:`stt_drake.config.validate.validate`
     checked; `schema` itself is left as it was."""
+    if seed is not None:
+        check_seed(seed, "seed")
     scenario = copy.deepcopy(schema)
     if seed is not None:
         scenario.seed = seed
     validate_dimension(scenario)
+    check_limits(scenario)  # before anything is drawn: finite numbers, seeds, memory
     expand_random_obstacles(scenario)
     validate(scenario)
     return scenario

@@ -5,9 +5,13 @@ import math
 import numpy as np
 
 from stt_drake.config.schema import AssumptionError, Obstacle, RandomObstacles, Scenario
-from stt_drake.config.validate import require, require_range, require_vector
-from stt_drake.core.motion import Oscillation
+from stt_drake.config.validate import SIGMA_MIN, require, require_range, require_vector
+from stt_drake.core.motion import Oscillation, oscillation_positions
 from stt_drake.core.probability import avoid_probability
+
+#: Draws tried per obstacle before the field is refused; a field that has placed none
+#: after this many draws is refused at once (its region leaves almost no room).
+ATTEMPTS_PER_OBSTACLE = 1000
 
 
 def has_random_field(spec: RandomObstacles | None) -> bool:
@@ -18,7 +22,9 @@ def has_random_field(spec: RandomObstacles | None) -> bool:
 def expand_random_obstacles(scenario: Scenario) -> None:
     """Append the `random_obstacles` draws to `scenario.obstacles`.
 
-    Reproducible: the draws depend only on (random_obstacles.seed, scenario seed).
+    Reproducible: the draws depend only on (random_obstacles.seed, scenario seed). At most
+    :data:`ATTEMPTS_PER_OBSTACLE` draws per obstacle are tried (AssumptionError when they
+    do not place them all).
     """
     spec, path = scenario.random_obstacles, "scenario.random_obstacles"
     if spec is not None:
@@ -37,13 +43,7 @@ def expand_random_obstacles(scenario: Scenario) -> None:
         "must exceed region_min on every axis",
         spec.region_max,
     )
-    require(
-        0.0 < scenario.duration < math.inf,
-        "scenario.duration",
-        "must be finite and > 0 (seconds)",
-        scenario.duration,
-    )
-    require_range(spec.sigma_range, f"{path}.sigma_range", 1e-9, math.inf)
+    require_range(spec.sigma_range, f"{path}.sigma_range", SIGMA_MIN, math.inf)
     require_range(spec.epsilon_range, f"{path}.epsilon_range", 1e-9, 1.0)
     require(
         spec.epsilon_range[1] < spec.p_d <= 1.0,
@@ -62,8 +62,8 @@ def expand_random_obstacles(scenario: Scenario) -> None:
     checkpoints = np.linspace(0.0, scenario.duration, 200)
     anchors = np.array([scenario.start, scenario.target], dtype=float)
     accepted: list[Obstacle] = []
-    for _attempt in range(1000 * count):
-        if len(accepted) == count:
+    for attempt in range(ATTEMPTS_PER_OBSTACLE * count):
+        if len(accepted) == count or (attempt == ATTEMPTS_PER_OBSTACLE and not accepted):
             break
         candidate = Obstacle(
             motion=Oscillation(
@@ -77,7 +77,14 @@ def expand_random_obstacles(scenario: Scenario) -> None:
             epsilon=float(rng.uniform(*spec.epsilon_range)),
             p_d=spec.p_d,
         )
-        path_points = np.array([candidate.motion.position(t) for t in checkpoints])
+        motion = candidate.motion
+        path_points = oscillation_positions(
+            np.asarray(motion.center),
+            np.asarray(motion.amplitude),
+            2.0 * np.pi * motion.frequency_hz,
+            np.asarray(motion.phase),
+            checkpoints[:, None],
+        )
         clear = all(
             np.all(
                 avoid_probability(

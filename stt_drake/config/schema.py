@@ -18,7 +18,20 @@ from stt_drake.core.tube import default_nu
 
 
 class ScenarioError(ValueError):
-    """A scenario file breaks a rule; the message names the field path and the rule."""
+    """A scenario file breaks a rule; the message names the field path and the rule.
+
+    The message is always one line (line breaks in it, e.g. from a YAML parser, become
+    spaces) and at most :data:`MAX_MESSAGE_LENGTH` characters."""
+
+    def __init__(self, message: object = "") -> None:
+        text = " ".join(part.strip() for part in str(message).splitlines() if part.strip())
+        if len(text) > MAX_MESSAGE_LENGTH:
+            text = text[: MAX_MESSAGE_LENGTH - 3] + "..."
+        super().__init__(text)
+
+
+#: Longest :class:`ScenarioError` message (characters).
+MAX_MESSAGE_LENGTH = 2000
 
 
 class AssumptionError(ScenarioError):
@@ -34,6 +47,11 @@ class Obstacle:
 
     `sigma` is the standard deviation of the centre per axis in metres (σ, not σ²);
     `sigma_schedule`, when given, replaces it with a piecewise-linear σ(t).
+
+    A scenario file must give `sigma` (or `sigma_schedule`), `epsilon` and `p_d`: a safety
+    tool does not invent an uncertainty or a risk level (the loader refuses a file without
+    them, :mod:`stt_drake.config.load`). The defaults here only serve Drake's loader and
+    code that builds obstacles itself.
     """
 
     motion: Motion = field(default_factory=ConstantVelocity)
@@ -54,6 +72,8 @@ class RandomObstacles:
     (checked with the buffered radius r_o + r_min; Assumption 3 and the initial
     condition of Definition 2.3). `count_range` = [low, high], when given instead of `count`,
     draws the number of obstacles uniformly from those integers (randomisation campaigns).
+    A file that draws obstacles must give `sigma_range`, `epsilon_range` and `p_d` (no
+    invented uncertainty or risk level; the defaults only serve Drake's loader).
     """
 
     count: int = 0
@@ -214,7 +234,10 @@ def _default_simulator_config() -> SimulatorConfig:
 
 @dataclass
 class Scenario:
-    """One PrT-RAS experiment: task, obstacles, tube, controller, plant, simulation."""
+    """One PrT-RAS experiment: task, obstacles, tube, controller, plant, simulation.
+
+    `max_memory_gb` (> 0) replaces the memory budget a run is checked against
+    (:mod:`stt_drake.config.limits`; 0: the default or the environment's)."""
 
     name: str = ""
     start: list[float] = field(default_factory=list)
@@ -232,6 +255,7 @@ class Scenario:
     log_period: float = 0.02
     strict: bool = False
     max_steps_per_second: float = 0.0
+    max_memory_gb: float = 0.0
 
     @property
     def dimension(self) -> int:

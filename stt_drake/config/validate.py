@@ -1,15 +1,20 @@
 """The rules of the paper and of the file format that a scenario can be checked against
-without building anything: shapes, signs, ranges, ν, the plant's fields, the controller's
-gains and funnels, and the initial avoidance condition q_j(s, 0) > ε_j (J(0) > 0 in the
-proof of Theorem 3.2 (ii)). Every broken rule raises :class:`ScenarioError` naming the full
-field path and the rule.
+without building anything: the limits of :mod:`stt_drake.config.limits` (finite, sane
+numbers, seeds, the simulator, memory), the name, shapes, signs, ranges, ν, the plant's
+fields, the controller's gains and funnels, the initial avoidance condition q_j(s, 0) > ε_j
+(J(0) > 0 in the proof of Theorem 3.2 (ii)) and Assumption 3 at the target
+(:mod:`stt_drake.config.assumptions`). Every broken rule raises :class:`ScenarioError`
+naming the full field path and the rule.
 """
 
 import math
+import re
 from typing import Any
 
 import numpy as np
 
+from stt_drake.config.assumptions import check_target_separation
+from stt_drake.config.limits import check_limits
 from stt_drake.config.schema import (
     PLANT_DIMENSION,
     PLANT_FUNNEL_DIMENSION,
@@ -22,15 +27,67 @@ from stt_drake.config.schema import (
     Scenario,
     ScenarioError,
 )
+from stt_drake.config.source import short_repr
 from stt_drake.core.motion import ConstantVelocity, Motion, Oscillation, Waypoints
 from stt_drake.core.probability import avoid_probability
 from stt_drake.core.tube import minimum_nu
 
+#: Smallest standard deviation σ of an obstacle centre (m). Below it the obstacle is, for
+#: the numerics, a knife edge: the tube law's switching band around the ε level set is
+#: about 5σ wide, so the error-controlled integrator needs steps of ~σ/|ċ| s (omni case 1
+#: with one obstacle's σ changed runs in 4 845 steps at σ = 1 mm and is stopped by the
+#: step-rate watchdog at 0.1 mm, 6.6e4 steps/s; at 1e-6 the UAV paper scenario even
+#: breaks center_avoid_probability between steps); the 2D avoidance probability (Marcum Q
+#: series) costs O(distance/σ) per evaluation (1 000× its normal cost at σ = 0.01 mm);
+#: and the numpy reference's noncentral-χ² series returned NaN from distance/σ ≈ 2e5 on
+#: ("the tube law produced a non-finite value"; it now switches to large-offset forms,
+#: :data:`stt_drake.core.probability.LARGE_OFFSET`). An obstacle known to better than
+#: 1 mm is a deterministic obstacle for this tool: give σ = 0.001.
+SIGMA_MIN = 1e-3
+
+#: Fastest fixed-rate tube update (Hz): a real-time rate; faster is continuous time (0).
+MAX_UPDATE_RATE_HZ = 1e4
+
+#: What a scenario name may hold: it names the results folder, results/<name>/.
+NAME_PATTERN = re.compile(r"[A-Za-z0-9_.-]{1,100}")
+
 
 def require(condition: bool, path: str, rule: str, value: Any) -> None:
-    """Raise ScenarioError "<path>: <rule> (got <value>)" unless `condition`."""
+    """Raise ScenarioError "<path>: <rule> (got <value>)" unless `condition` (the value
+    echoed as :func:`stt_drake.config.source.short_repr`)."""
     if not condition:
-        raise ScenarioError(f"{path}: {rule} (got {value!r})")
+        raise ScenarioError(f"{path}: {rule} (got {short_repr(value)})")
+
+
+def name_from_stem(stem: str) -> str:
+    """A valid scenario name from a file name's stem: every character a name may not hold
+    made "_" (a stem of dots only, or none, gives "scenario")."""
+    name = re.sub(r"[^A-Za-z0-9_.-]", "_", stem)[:100]
+    return name if name.strip(".") else "scenario"
+
+
+def validate_name(name: str) -> None:
+    """`name` is a name, not a path: letters, digits, "_", "-" and "." only (1-100 of
+    them), not "." or ".." nor containing "..", so results/<name>/ stays inside results/."""
+    require(
+        bool(NAME_PATTERN.fullmatch(name)) and ".." not in name and name != ".",
+        "scenario.name",
+        "must be a name, not a path: 1-100 letters, digits, '_', '-' or '.', without '..' "
+        "(it names the folder results/<name>/)",
+        name,
+    )
+
+
+def require_sigma(value: float, path: str) -> None:
+    """σ ≥ :data:`SIGMA_MIN` (see there why)."""
+    require(
+        value >= SIGMA_MIN,
+        path,
+        f"must be ≥ {SIGMA_MIN:g} (a standard deviation in metres; below 1 mm the tube "
+        "law's level sets are too thin to integrate and its probabilities too costly to "
+        "evaluate: treat such an obstacle as certain with sigma 0.001)",
+        value,
+    )
 
 
 def require_vector(value: list[float], length: int, path: str) -> None:
@@ -92,6 +149,7 @@ def _validate_obstacle(obstacle: Obstacle, n: int, path: str) -> None:
         "must be > 0 (a standard deviation in metres)",
         obstacle.sigma,
     )
+    require_sigma(obstacle.sigma, f"{path}.sigma")
     if obstacle.sigma_schedule is not None:
         schedule = obstacle.sigma_schedule
         require(
@@ -107,6 +165,8 @@ def _validate_obstacle(obstacle: Obstacle, n: int, path: str) -> None:
             "must all be > 0 (standard deviations in metres)",
             schedule.values,
         )
+        for k, value in enumerate(schedule.values):
+            require_sigma(value, f"{path}.sigma_schedule.values[{k}]")
     require(
         0.0 < obstacle.epsilon <= 1.0, f"{path}.epsilon", "must lie in (0, 1]", obstacle.epsilon
     )
@@ -165,6 +225,12 @@ def _validate_plant(scenario: Scenario) -> None:
             value = getattr(plant, name)
             require(value > 0.0, f"{path}.{name}", "must be > 0 (metres)", value)
         require(plant.heading_gain > 0.0, f"{path}.heading_gain", "must be > 0", plant.heading_gain)
+        require(
+            plant.disturbance_frequency_hz >= 0.0,
+            f"{path}.disturbance_frequency_hz",
+            "must be ≥ 0 (Hz)",
+            plant.disturbance_frequency_hz,
+        )
         require_vector(plant.disturbance_amplitude, n, f"{path}.disturbance_amplitude")
         if plant.initial_position:
             require_vector(plant.initial_position, n, f"{path}.initial_position")
@@ -202,22 +268,12 @@ def validate(scenario: Scenario) -> None:
     plant model (those are :func:`stt_drake.build.checks.check_buildable`); raise
     ScenarioError (AssumptionError when the initial avoidance condition fails)."""
     validate_dimension(scenario)
+    check_limits(scenario, drawn=True)
+    validate_name(scenario.name)
     n = scenario.dimension
     require(n >= 1, "scenario.start", "must have at least one entry", scenario.start)
     require_vector(scenario.start, n, "scenario.start")
     require_vector(scenario.target, n, "scenario.target")
-    require(
-        0.0 < scenario.duration < math.inf,
-        "scenario.duration",
-        "must be finite and > 0 (seconds)",
-        scenario.duration,
-    )
-    require(
-        scenario.log_period > 0.0,
-        "scenario.log_period",
-        "must be > 0 (seconds)",
-        scenario.log_period,
-    )
     require(
         0.0 <= scenario.max_steps_per_second < math.inf,
         "scenario.max_steps_per_second",
@@ -250,9 +306,9 @@ def validate(scenario: Scenario) -> None:
         )
     require(tube.k3 >= 0.0, "scenario.tube.k3", "must be ≥ 0", tube.k3)
     require(
-        tube.update_rate_hz >= 0.0,
+        0.0 <= tube.update_rate_hz <= MAX_UPDATE_RATE_HZ,
         "scenario.tube.update_rate_hz",
-        "must be ≥ 0 (0 = continuous time)",
+        f"must be ≥ 0 (0 = continuous time) and ≤ {MAX_UPDATE_RATE_HZ:g} (a real-time rate)",
         tube.update_rate_hz,
     )
     for i, obstacle in enumerate(scenario.obstacles):
@@ -270,6 +326,7 @@ def validate(scenario: Scenario) -> None:
     funnel_dimension = PLANT_FUNNEL_DIMENSION.get(type(scenario.plant), n)
     _validate_controller(scenario.controller, funnel_dimension, stages)
     _validate_initial_condition(scenario)
+    check_target_separation(scenario)
 
 
 def _validate_initial_condition(scenario: Scenario) -> None:

@@ -52,6 +52,15 @@ PRUNE_HEADROOM_NU = 40.0
 #: Φ⁻¹(2⁻⁵⁴): below this b − a the noncentral chi survival function is 1 in double precision.
 _SF_IS_ONE_BELOW = float(special.ndtri(2.0**-54))
 
+#: Offset a from which the numpy reference uses the large-offset forms instead of Boost and
+#: cdflib, whose noncentral χ² series stop converging from a ≈ 2e5 (λ = a² ≈ 4e10; near
+#: b ≈ a they return NaN or wrong values — what made σ = 1e-6 "a non-finite value").
+#: There ‖Z‖ = a + X + R²/(2a) + O(1/a²), X ~ N(0, 1), R² ~ χ²_{n−1}, so
+#: sf(b) = Φ(a − b) + φ(b − a)(n − 1)/(2b) + O(1/b²) and the quantile is
+#: a + Φ⁻¹(1 − ε) + (n − 1)/(2a) + O(1/a²); the reference returns its lower bound
+#: a − Φ⁻¹(ε) (conservative: d̂ low by at most σ(n − 1)/(2a), ≤ 1e-5 σ).
+LARGE_OFFSET = 1e5
+
 
 def _normal_pdf(x: np.ndarray) -> np.ndarray:
     return _INV_SQRT_2PI * np.exp(-0.5 * x * x)
@@ -98,10 +107,17 @@ def _numpy_chi_sf(threshold: np.ndarray, offset: np.ndarray, dimension: int) -> 
     # returns −0.0 at x = 0 when nc > 0, and raises OverflowError (tgamma) for x ≲ 2.5e-8
     # once nc ≳ 400. Since ‖Z‖ ≥ Z·e, 1 − sf ≤ Φ(b − a) ≤ 2⁻⁵⁴ when b − a ≤ _SF_IS_ONE_BELOW,
     # and 1 − 2⁻⁵⁴ rounds to 1. (Written so that NaN inputs still reach Boost and give NaN.)
-    x, nc = np.broadcast_arrays(b * b, a * a)
+    b, a = np.broadcast_arrays(b, a)
+    x, nc = b * b, a * a
     compute = ~((x <= 0.0) | (b - a <= _SF_IS_ONE_BELOW))
+    large = compute & (a >= LARGE_OFFSET)
+    series = compute & ~large
     result = np.ones(x.shape)
-    result[compute] = _ncx2_sf(x[compute], dimension, nc[compute])
+    result[series] = _ncx2_sf(x[series], dimension, nc[series])
+    bl, al = b[large], a[large]
+    result[large] = np.minimum(
+        special.ndtr(al - bl) + _normal_pdf(bl - al) * (dimension - 1) / (2.0 * bl), 1.0
+    )
     return result[()]
 
 
@@ -116,16 +132,22 @@ def noncentral_chi_isf(probability: np.ndarray, offset: np.ndarray, dimension: i
 def _numpy_chi_isf(probability: np.ndarray, offset: np.ndarray, dimension: int) -> np.ndarray:
     """Reference path of :func:`noncentral_chi_isf`: Boost's isf for p ≤ 1/2, cdflib's
     inverse CDF at 1 − p above (1 − p is exact there; an isf near p = 1 is conditioned by
-    the absolute rounding of sf and loses ~1e-16/(n(1 − p)) relative)."""
+    the absolute rounding of sf and loses ~1e-16/(n(1 − p)) relative); from
+    :data:`LARGE_OFFSET` on, the lower bound a − Φ⁻¹(p)."""
     p, a = np.broadcast_arrays(
         np.asarray(probability, dtype=float), np.asarray(offset, dtype=float)
     )
-    p, nc = p.ravel(), (a * a).ravel()
-    lower_tail = p > 0.5
+    p, offset = p.ravel(), a.ravel()
+    nc = offset * offset
+    large = offset >= LARGE_OFFSET
+    lower_tail = (p > 0.5) & ~large
+    upper_tail = ~((p > 0.5) | large)
     x = np.empty(p.shape)
     x[lower_tail] = special.chndtrix(1.0 - p[lower_tail], dimension, nc[lower_tail])
-    x[~lower_tail] = _ncx2_isf(p[~lower_tail], dimension, nc[~lower_tail])
-    return np.sqrt(x).reshape(a.shape)[()]
+    x[upper_tail] = _ncx2_isf(p[upper_tail], dimension, nc[upper_tail])
+    s = np.sqrt(x)
+    s[large] = np.maximum(offset[large] - special.ndtri(p[large]), 0.0)
+    return s.reshape(a.shape)[()]
 
 
 def avoid_probability(

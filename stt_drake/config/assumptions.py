@@ -1,0 +1,75 @@
+"""Assumption 3 of the paper at the target, on the scenario before a run.
+
+Assumption 3: after some time t_1, P(‖c(t) − O_j(t)‖ ≥ r_o_j + r_min) ≥ p_d_j for every
+obstacle j and t ≥ t_1 — the obstacles eventually leave the tube's centre, in particular
+the target η, alone. :func:`target_separation` evaluates q_j(η, t) over the run;
+:func:`check_target_separation` refuses an obstacle that covers the target for the whole
+run (it never leaves it: no t_1 exists in the run), and :mod:`stt_drake.story` records
+one that is there at the end only (metrics.json `assumptions`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from stt_drake.config.schema import AssumptionError, Scenario
+from stt_drake.core.belief import obstacle_sigma
+from stt_drake.core.motion import MotionTable
+from stt_drake.core.probability import avoid_probability
+
+#: How many evenly spaced times over [0, duration] the target separation is checked at.
+SEPARATION_CHECKPOINTS = 200
+
+
+@dataclass(frozen=True)
+class TargetSeparation:
+    """q_j(η, t) = P(‖η − O_j(t)‖ ≥ r_o_j + r_min) at `times` (k, j), and each p_d_j."""
+
+    times: np.ndarray
+    q: np.ndarray
+    p_d: np.ndarray
+
+    def below(self) -> np.ndarray:
+        """(k, j): the obstacle is within p_d of the target at that time."""
+        return self.q < self.p_d[None, :]
+
+
+def target_separation(
+    scenario: Scenario, checkpoints: int = SEPARATION_CHECKPOINTS
+) -> TargetSeparation:
+    """q_j(η, t) at `checkpoints` times evenly over [0, duration], η the final target (the
+    means of all obstacles stacked once, :class:`stt_drake.core.motion.MotionTable`)."""
+    obstacles = scenario.obstacles
+    times = np.linspace(0.0, scenario.duration, max(int(checkpoints), 2))
+    target = np.asarray(scenario.target, dtype=float)
+    table = MotionTable([o.motion for o in obstacles], scenario.dimension)
+    radius = np.array([o.radius for o in obstacles], dtype=float) + scenario.tube.r_min
+    sigma = np.array([o.sigma for o in obstacles], dtype=float)
+    scheduled = [j for j, o in enumerate(obstacles) if o.sigma_schedule is not None]
+    q = np.empty((times.size, len(obstacles)))
+    for k, time in enumerate(times):
+        for j in scheduled:
+            sigma[j] = obstacle_sigma(obstacles[j], float(time))
+        if obstacles:
+            q[k] = avoid_probability(target, table.positions(float(time)), sigma, radius)
+    p_d = np.array([o.p_d for o in obstacles], dtype=float)
+    return TargetSeparation(times, q, p_d)
+
+
+def check_target_separation(scenario: Scenario) -> None:
+    """Refuse (AssumptionError) an obstacle within p_d of the target at every checkpoint of
+    the run: it sits on the target for good, so Assumption 3 cannot hold and the tube,
+    which must stay clear of it with probability ≥ ε, can never settle in the target set."""
+    if not scenario.obstacles:
+        return
+    separation = target_separation(scenario)
+    for j in np.flatnonzero(np.all(separation.below(), axis=0)):
+        raise AssumptionError(
+            f"scenario.obstacles[{j}]: Assumption 3 (separation at the target) is broken: the "
+            f"obstacle covers the target for the whole run — P(‖η − O_{j}(t)‖ ≥ r_o + r_min) "
+            f"stays below p_d = {separation.p_d[j]:g} from t = 0 to {scenario.duration:g} s "
+            f"(at most {float(np.max(separation.q[:, j])):.6g}), so the tube could never "
+            "settle in the target set; move the obstacle or the target"
+        )
