@@ -1,11 +1,12 @@
 """A self-contained HTML replay of a run (Meshcat), written from its log.
 
-:func:`write_meshcat_replay` starts a local Meshcat server (no network beyond localhost),
-draws the scene — obstacles as spheres of radius r_o coloured by σ with a translucent
-sphere for their {q̂_j ≤ ε_j} set, the tube Γ(t) = B(c, r) as a translucent sphere, the
-robot, the start and target sets and the output path — animates it from the logged
-samples with a :class:`pydrake.geometry.MeshcatAnimation`, and saves
-``Meshcat.StaticHtml()``: one HTML file that plays the run in a browser, offline.
+:func:`write_meshcat_replay` starts a Meshcat server bound to 127.0.0.1 (no network beyond
+the loopback unless another host is asked for), draws the scene — obstacles as spheres of
+radius r_o coloured by σ with a translucent sphere for their {q̂_j ≤ ε_j} set, the tube
+Γ(t) = B(c, r) as a translucent sphere, the robot, the start and target sets and the
+output path — animates it from the logged samples with a
+:class:`pydrake.geometry.MeshcatAnimation`, and saves ``Meshcat.StaticHtml()``: one HTML
+file that plays the run in a browser, offline.
 
 A 2D run is drawn in the plane z = 0 (spheres cut by it). The UAV (n = 3) is drawn as a
 quadrotor whose body axis follows the commanded force u (the thrust direction an attitude
@@ -21,7 +22,15 @@ from typing import Any
 
 import numpy as np
 from matplotlib.colors import to_rgba
-from pydrake.geometry import Box, Cylinder, Meshcat, MeshcatAnimation, Rgba, Sphere
+from pydrake.geometry import (
+    Box,
+    Cylinder,
+    Meshcat,
+    MeshcatAnimation,
+    MeshcatParams,
+    Rgba,
+    Sphere,
+)
 from pydrake.math import RigidTransform, RotationMatrix
 
 from stt_drake.plotting import PALETTE, level_set_radius, obstacle_colors
@@ -32,6 +41,15 @@ MAX_FRAMES = 600
 #: Robot radius drawn when the caller gives none (m).
 DEFAULT_BODY_RADIUS = 0.2
 _ROOT = "/stt"
+#: Where the replay's Meshcat server listens unless told otherwise: the loopback only.
+LOCALHOST = "127.0.0.1"
+
+
+def start_meshcat(host: str = LOCALHOST) -> Meshcat:
+    """A Meshcat server on `host` (default the loopback interface, never the network unless
+    asked: pydrake's own default is every interface) at an ephemeral port, so parallel
+    replays never collide."""
+    return Meshcat(MeshcatParams(host=host, port=0))
 
 
 def body_radius(plant: object) -> float | None:
@@ -104,6 +122,7 @@ def write_meshcat_replay(
     path: str | Path,
     body_radius: float | None = None,
     max_frames: int = MAX_FRAMES,
+    host: str = LOCALHOST,
 ) -> Path:
     """Write an offline HTML replay of a run (2D or 3D) to `path`.
 
@@ -115,6 +134,8 @@ def write_meshcat_replay(
             radius); default :data:`DEFAULT_BODY_RADIUS`.
         max_frames: the animation keeps at most this many logged samples (evenly strided),
             played back at the logged time scale.
+        host: the interface the (short-lived) Meshcat server listens on while the scene
+            is drawn; default :data:`LOCALHOST` (``"*"``: every interface).
 
     Returns:
         The path written.
@@ -132,7 +153,7 @@ def write_meshcat_replay(
     duration = float(run.t[-1] - run.t[0])
     frames_per_second = (picks.size - 1) / duration if duration > 0.0 else 1.0
 
-    meshcat = Meshcat(port=0)  # an ephemeral localhost port: parallel replays never collide
+    meshcat = start_meshcat(host)
     try:
         meshcat.Delete()
         norm, cmap = obstacle_colors(run)

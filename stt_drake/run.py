@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -16,7 +15,7 @@ from stt_drake.build.diagram import SttDiagram, build_diagram
 from stt_drake.build.feasibility import scenario_warnings
 from stt_drake.config import Scenario
 from stt_drake.core.invariants import HOLDS_TOLERANCE, InvariantTracker, reach_story
-from stt_drake.runlog import RunLog
+from stt_drake.runlog import RunLog, write_json
 from stt_drake.story import (
     belief_discontinuities,
     recovery_episodes,
@@ -213,10 +212,12 @@ def simulate(scenario: Scenario, strict: bool | None = None) -> RunResult:
 
 def write_outputs(result: RunResult, out_dir: Path, figures: bool = True) -> list[Path]:
     """Write metrics.json, log.npz and (optionally) the PNG figures into `out_dir` (no
-    figures for a run that stopped before its second logged sample: no curve to draw)."""
+    figures for a run that stopped before its second logged sample: no curve to draw).
+
+    metrics.json is strict JSON (:func:`stt_drake.runlog.strict_json`): a non-finite
+    value (an infinite margin, σ = ∞) is ``null``, named in its ``"non_finite"`` object."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    metrics_path = out_dir / "metrics.json"
-    metrics_path.write_text(json.dumps(result.metrics, indent=2) + "\n")
+    metrics_path = write_json(out_dir / "metrics.json", result.metrics)
     log = RunLog.of(result.log)
     written = [metrics_path, log.save(out_dir / "log.npz")]
     if figures and log.samples >= 2:

@@ -40,11 +40,17 @@ target active at each sample) and constants (the arm's ``position_lower``,
 ``position_upper``, ``velocity_limit``, ``effort_limit``); they are members like any
 other.
 
+The run's other files are strict JSON (:func:`strict_json`, :func:`write_json`: no
+``NaN``/``Infinity``; a non-finite value is ``null`` and named in ``"non_finite"``), in a
+folder checked before any work (:func:`unwritable_reason`).
+
 Pure numpy: no Drake is imported (the loggers are read through their methods).
 """
 
 from __future__ import annotations
 
+import json
+import tempfile
 from collections.abc import Iterator, Mapping, Sequence
 from functools import cached_property
 from pathlib import Path
@@ -371,3 +377,105 @@ class RunLog(Mapping[str, np.ndarray]):
     def tube_avoid_probability(self) -> np.ndarray:
         """(T, m) P(‖c − O_j‖ ≥ r_o_j + r)."""
         return self.rows("tube_avoid_probability", self.count)
+
+
+# ---------------------------------------------------------------------- the other files
+
+#: The key that lists a JSON document's non-finite values (see :func:`strict_json`).
+NON_FINITE_KEY = "non_finite"
+
+
+def _pointer_part(key: object) -> str:
+    return str(key).replace("~", "~0").replace("/", "~1")
+
+
+def _finite_copy(value: Any, pointer: str, found: dict[str, str]) -> Any:
+    """`value` with numpy scalars and arrays as Python values and every non-finite float
+    replaced by None (its JSON pointer and ``repr`` recorded in `found`)."""
+    if isinstance(value, Mapping):
+        return {
+            str(key): _finite_copy(item, f"{pointer}/{_pointer_part(key)}", found)
+            for key, item in value.items()
+        }
+    if isinstance(value, list | tuple | np.ndarray):
+        items = value.tolist() if isinstance(value, np.ndarray) else value
+        return [_finite_copy(item, f"{pointer}/{k}", found) for k, item in enumerate(items)]
+    if isinstance(value, bool | np.bool_):
+        return bool(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, float | np.floating):
+        number = float(value)
+        if not np.isfinite(number):
+            found[pointer] = repr(number)  # "inf", "-inf" or "nan"
+            return None
+        return number
+    return value
+
+
+def strict_json(document: Mapping[str, Any], indent: int | None = None) -> str:
+    """`document` as strict JSON (RFC 8259: no ``NaN``/``Infinity`` tokens), one line
+    unless `indent` is given; every JSON file the package writes goes through here.
+
+    A non-finite number is written as ``null`` and named, with its value, in the
+    document's top-level ``"non_finite"`` object: JSON pointer (RFC 6901) → ``"inf"``,
+    ``"-inf"`` or ``"nan"``, e.g. ``{"/invariants/output_in_tube/worst_margin": "inf"}``
+    (the key is present only when there is one). :func:`restore_non_finite` undoes it.
+    """
+    found: dict[str, str] = {}
+    clean = _finite_copy(document, "", found)
+    if found:
+        clean[NON_FINITE_KEY] = {**clean.get(NON_FINITE_KEY, {}), **found}
+    return json.dumps(clean, indent=indent, allow_nan=False)
+
+
+def write_json(path: str | Path, document: Mapping[str, Any]) -> Path:
+    """Write `document` to `path` as indented strict JSON (:func:`strict_json`)."""
+    path = Path(path)
+    path.write_text(strict_json(document, indent=2) + "\n")
+    return path
+
+
+def restore_non_finite(document: dict[str, Any]) -> dict[str, Any]:
+    """Undo :func:`strict_json`'s replacements in a parsed document, in place: each value
+    named in ``"non_finite"`` gets its float back and the key is removed. Returns it."""
+    named = document.pop(NON_FINITE_KEY, None)
+    if not isinstance(named, dict):
+        return document
+    for pointer, text in named.items():
+        parts = [p.replace("~1", "/").replace("~0", "~") for p in str(pointer).split("/")[1:]]
+        parent: Any = document
+        for part in parts[:-1]:
+            parent = parent[int(part)] if isinstance(parent, list) else parent[part]
+        last = parts[-1]
+        if isinstance(parent, list):
+            parent[int(last)] = float(text)
+        else:
+            parent[last] = float(text)
+    return document
+
+
+def unwritable_reason(folder: str | Path) -> str | None:
+    """Why files cannot be written into `folder` (created if missing), or None if they can.
+
+    Writes nothing: the nearest existing ancestor must be a folder in which an unnamed
+    temporary file can be made (``O_TMPFILE``, gone when closed), so permissions,
+    read-only file systems and a file in the way are all found before any work is done.
+    """
+    folder = Path(folder)
+    existing = folder
+    try:
+        while not existing.exists() and existing.parent != existing:
+            existing = existing.parent
+    except (OSError, ValueError) as error:  # cannot even be looked at (EACCES, a NUL byte)
+        return f"cannot be reached: {getattr(error, 'strerror', None) or error}"
+    if not existing.is_dir():
+        where = "" if existing == folder else f" ({existing} is in the way)"
+        return f"is not a folder{where}"
+    try:
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as error:
+        where = "" if existing == folder else f" (in {existing})"
+        return f"cannot be written{where}: {error.strerror or error}"
+    return None

@@ -187,3 +187,23 @@ def test_cli_runs_the_uav_scenario_with_the_2d_contract_and_a_replay(tmp_path):
     log = np.load(out / "log.npz")
     assert log["output"].shape == (len(log["t"]), 3)
     check_self_contained((out / "replay.html").read_text())
+
+
+def test_the_replay_meshcat_listens_on_the_loopback_only():
+    """pydrake's own default host is every interface ("*"); the replay's server is bound
+    to 127.0.0.1 unless another host is asked for."""
+    import psutil
+
+    from stt_drake.replay import start_meshcat
+
+    meshcat = start_meshcat()
+    try:
+        assert meshcat.web_url() == f"http://127.0.0.1:{meshcat.port()}"
+        listening = [
+            c.laddr
+            for c in psutil.Process().net_connections(kind="tcp")
+            if c.status == psutil.CONN_LISTEN and c.laddr.port == meshcat.port()
+        ]
+        assert listening and all(address.ip == "127.0.0.1" for address in listening)
+    finally:
+        del meshcat

@@ -23,23 +23,27 @@ Run i uses the seed :func:`run_seed` (campaign seed, i); ``stt-drake run SCENARI
 replays a randomisation run alone. The statistics are in :mod:`stt_drake.core.statistics`; the
 command is :mod:`stt_drake.cli.campaign`.
 
-Modules: :mod:`~stt_drake.campaign.spec` (:class:`CampaignSpec`, :class:`CampaignError`),
-:mod:`~stt_drake.campaign.sampling` (seeds, true-obstacle draws),
-:mod:`~stt_drake.campaign.randomisation` (a randomisation run),
-:mod:`~stt_drake.campaign.executor` (pool / Dask, resume, :func:`run_campaign`),
+Modules: :mod:`~stt_drake.campaign.spec` (:class:`CampaignSpec`, :class:`CampaignError`,
+:class:`CampaignStoppedError`), :mod:`~stt_drake.campaign.sampling` (seeds, true-obstacle
+draws), :mod:`~stt_drake.campaign.randomisation` (a randomisation run),
+:mod:`~stt_drake.campaign.backends` (local pool / Dask, :func:`execute`),
+:mod:`~stt_drake.campaign.folder` (the lock, ``campaign_spec.json``, reading
+``runs.jsonl``), :mod:`~stt_drake.campaign.executor` (:func:`run_campaign`, resume),
 :mod:`~stt_drake.campaign.report` (summaries, ``campaign.json``, figures, the printed table;
 the package attribute ``report`` is the function :func:`report`, re-exported below).
 """
 
-from stt_drake.campaign.executor import CLOSED_LOOP_FILE, read_records, run_campaign
+from stt_drake.campaign.executor import CLOSED_LOOP_FILE, run_campaign
+from stt_drake.campaign.folder import read_records
 from stt_drake.campaign.report import report
 from stt_drake.campaign.sampling import ClosedLoop, run_seed, sample_true_obstacles, sample_xi
-from stt_drake.campaign.spec import CampaignError, CampaignSpec
+from stt_drake.campaign.spec import CampaignError, CampaignSpec, CampaignStoppedError
 
 __all__ = [
     "CLOSED_LOOP_FILE",
     "CampaignError",
     "CampaignSpec",
+    "CampaignStoppedError",
     "ClosedLoop",
     "read_records",
     "report",

@@ -1,135 +1,77 @@
-"""Running a campaign: the local process pool or Dask cluster the runs go to, resuming
-from ``runs.jsonl`` (only by the same spec, kept in ``campaign_spec.json``; the spec is
-:class:`stt_drake.campaign.spec.CampaignSpec`), and :func:`run_campaign`.
+"""Running a campaign: :func:`run_campaign`, in the order that keeps a folder consistent
+whatever goes wrong.
 
-Runs go through a :class:`concurrent.futures.Executor`: a local process pool, or a Dask
-``distributed`` client. Each finished run is appended to ``runs.jsonl``; ``--resume`` skips
-the runs already there.
+1. Every option, the output folder (writable: :func:`stt_drake.runlog.unwritable_reason`)
+   and the scenario are checked, and the runs' backend is opened — a Dask scheduler
+   reached and a worker awaited (:mod:`stt_drake.campaign.backends`) — before anything is
+   written or simulated.
+2. The folder is locked (:func:`stt_drake.campaign.folder.folder_lock`), checked to hold
+   no other campaign (resume only by the same spec, kept in ``campaign_spec.json``), and
+   the closed loop is simulated (true-obstacle campaigns).
+3. Each finished run is appended to ``runs.jsonl`` (strict JSON, one line); a resume
+   skips the runs already there, counts malformed lines (``malformed_lines`` in
+   ``campaign.json``) and redoes their runs. A local worker process that dies is
+   replaced by a fresh pool and its runs redone; a lost Dask scheduler, no Dask worker
+   for the timeout, or local workers dying again and again stop the campaign with
+   :class:`~stt_drake.campaign.spec.CampaignStoppedError`, everything recorded kept.
 """
 
 from __future__ import annotations
 
-import concurrent.futures as cf
-import contextlib
 import hashlib
 import json
-import multiprocessing
-import os
 import sys
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import asdict, dataclass
+from collections.abc import Callable, Iterator
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from stt_drake.campaign.backends import (
+    DASK_TIMEOUT_S,
+    Backend,
+    check_scheduler_address,
+    execute,
+    open_backend,
+)
+from stt_drake.campaign.folder import (
+    RUNS_FILE,
+    SPEC_FILE,
+    Record,
+    check_resumable,
+    folder_lock,
+    load_runs,
+)
 from stt_drake.campaign.randomisation import (
     FAILURES_DIR,
     draw_failed,
     failing_draw_yaml,
     failure_name,
+    is_randomisation_record,
     randomisation_task,
 )
 from stt_drake.campaign.report import write_summary
 from stt_drake.campaign.sampling import (
     ClosedLoop,
+    is_true_obstacle_record,
     output_collided,
     run_seed,
     sample_true_obstacles,
 )
-from stt_drake.campaign.spec import CampaignError, CampaignSpec
+from stt_drake.campaign.spec import CampaignError, CampaignSpec, CampaignStoppedError
+from stt_drake.runlog import strict_json, unwritable_reason, write_json
 
-RUNS_FILE, SPEC_FILE, CLOSED_LOOP_FILE = "runs.jsonl", "campaign_spec.json", "closed_loop.npz"
+__all__ = ["CLOSED_LOOP_FILE", "RUNS_FILE", "SPEC_FILE", "CampaignOutcome", "run_campaign"]
 
-
-def default_workers() -> int:
-    """Cores this process may use."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not on Linux
-        return os.cpu_count() or 1
-
-
-@contextlib.contextmanager
-def campaign_executor(
-    workers: int | None = None,
-    scheduler: str | None = None,
-    preload: Sequence[str] = ("stt_drake.campaign",),
-) -> Iterator[tuple[cf.Executor, int]]:
-    """(executor, parallel slots): a Dask client's executor when `scheduler` is given, else
-    a local process pool of `workers` (default: every core).
-
-    The pool uses the "forkserver" start method with `preload` imported once in the
-    server: workers fork from a clean process that has imported pydrake but never run a
-    simulation or started a thread (plain "fork" from the campaign process would copy a
-    process that has simulated; "spawn" re-imports pydrake in every worker, ~2-3 s each).
-    """
-    if scheduler is not None:
-        from distributed import Client
-
-        try:
-            client = Client(scheduler, timeout="20s")
-        except (OSError, TimeoutError) as error:
-            raise CampaignError(f"--scheduler: cannot reach {scheduler}: {error}") from None
-        with client:
-            slots = sum(w["nthreads"] for w in client.scheduler_info()["workers"].values())
-            yield client.get_executor(pure=False), max(slots, 1)
-        return
-    workers = default_workers() if workers is None else workers
-    context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload(list(preload))
-    with cf.ProcessPoolExecutor(max_workers=workers, mp_context=context) as executor:
-        yield executor, workers
-
-
-def read_records(path: Path) -> dict[int, dict[str, Any]]:
-    """Runs already in `runs.jsonl` by index; a torn last line (a kill mid-write) is cut off."""
-    if not path.exists():
-        return {}
-    data = path.read_bytes()
-    keep = data.rfind(b"\n") + 1
-    if keep < len(data):
-        with path.open("r+b") as stream:
-            stream.truncate(keep)
-    records: dict[int, dict[str, Any]] = {}
-    for line in data[:keep].decode().splitlines():
-        if line.strip():
-            record = json.loads(line)
-            records.setdefault(record["run"], record)
-    return records
+CLOSED_LOOP_FILE = "closed_loop.npz"
+#: A local pool broken this many times in a row without a run finishing stops the campaign.
+MAX_POOL_RESTARTS = 3
 
 
 def _chunks(pending: list[int], size: int) -> Iterator[list[int]]:
     for start in range(0, len(pending), size):
         yield pending[start : start + size]
-
-
-def execute(
-    executor: cf.Executor,
-    slots: int,
-    task: Callable[..., list[dict[str, Any]]],
-    task_args: tuple[Any, ...],
-    batches: Iterable[list[tuple[int, int]]],
-    on_records: Callable[[list[dict[str, Any]]], None],
-) -> None:
-    """Submit ``task(*task_args, batch)`` per batch, at most 2·slots in flight, and hand
-    each finished batch's records to `on_records` (in completion order)."""
-    batches = iter(batches)
-    in_flight: set[cf.Future] = set()
-    try:
-        while True:
-            while len(in_flight) < 2 * slots:
-                batch = next(batches, None)
-                if batch is None:
-                    break
-                in_flight.add(executor.submit(task, *task_args, batch))
-            if not in_flight:
-                return
-            done, in_flight = cf.wait(in_flight, return_when=cf.FIRST_COMPLETED)
-            for future in done:
-                on_records(future.result())
-    finally:
-        for future in in_flight:
-            future.cancel()
 
 
 @dataclass
@@ -139,26 +81,6 @@ class CampaignOutcome:
     summary: dict[str, Any]
     out_dir: Path
     records: list[dict[str, Any]]
-
-
-def _check_resumable(out_dir: Path, spec: CampaignSpec, text_hash: str, resume: bool) -> None:
-    spec_path = out_dir / SPEC_FILE
-    wanted = {**asdict(spec), "scenario_sha256": text_hash}
-    if spec_path.exists() and (out_dir / RUNS_FILE).exists():
-        if not resume:
-            raise CampaignError(
-                f"--out: {out_dir} already holds a campaign; pass --resume to continue it "
-                "or choose another --out"
-            )
-        stored = json.loads(spec_path.read_text())
-        for key, value in wanted.items():
-            if key not in ("runs", "scenario") and stored.get(key) != value:
-                raise CampaignError(
-                    f"--resume: {key} differs from the campaign in {out_dir} "
-                    f"({stored.get(key)!r} there, {value!r} now)"
-                )
-    out_dir.mkdir(parents=True, exist_ok=True)
-    spec_path.write_text(json.dumps(wanted, indent=2) + "\n")
 
 
 def _load_checked_scenario(spec: CampaignSpec, text: str, name: str) -> Any:
@@ -184,6 +106,17 @@ def _load_checked_scenario(spec: CampaignSpec, text: str, name: str) -> Any:
         raise CampaignError(f"bad scenario {spec.scenario}: {error}") from None
 
 
+def _scenario_text(path: Path) -> str:
+    """The scenario file's text, size and UTF-8 checked
+    (:func:`stt_drake.config.read_scenario_file`)."""
+    from stt_drake.config import ScenarioError, read_scenario_file
+
+    try:
+        return read_scenario_file(path)
+    except ScenarioError as error:
+        raise CampaignError(str(error)) from None
+
+
 def run_campaign(
     spec: CampaignSpec,
     out_dir: Path,
@@ -194,45 +127,96 @@ def run_campaign(
     progress: bool = True,
     figures: bool = True,
     closed_loop: ClosedLoop | None = None,
+    dask_timeout: float = DASK_TIMEOUT_S,
 ) -> CampaignOutcome:
     """Run (or resume) a campaign and write runs.jsonl, campaign.json and the figure.
 
     `closed_loop` (true-obstacle campaigns) replaces the simulation of the scenario: pass
-    a trajectory simulated with a different tube to test the check itself.
+    a trajectory simulated with a different tube to test the check itself. `dask_timeout`
+    bounds the wait for the scheduler, for a first worker and any time without a worker.
+
+    Raises:
+        CampaignError: bad input (an option, the scenario, the folder, the scheduler's
+            address; the folder locked by another campaign), found before any work.
+        CampaignStoppedError: the campaign could not finish; the runs recorded are kept.
     """
     spec.validate()
     if chunk_size is not None and chunk_size < 1:
         raise CampaignError(f"--chunk-size: must be ≥ 1 (got {chunk_size})")
     if workers is not None and workers < 1:
         raise CampaignError(f"--workers: must be ≥ 1 (got {workers})")
+    if not 0.0 < dask_timeout < float("inf"):
+        raise CampaignError(f"--dask-timeout: must be a finite time > 0 s (got {dask_timeout})")
+    if scheduler is not None:
+        check_scheduler_address(scheduler)
+    reason = unwritable_reason(out_dir)
+    if reason is not None:
+        raise CampaignError(f"--out: {out_dir} {reason}")
     path = Path(spec.scenario)
-    if not path.is_file():
-        raise CampaignError(f"{path}: no such scenario file")
-    text, name = path.read_text(), path.stem
+    text, name = _scenario_text(path), path.stem
     scenario = _load_checked_scenario(spec, text, name)
     text_hash = hashlib.sha256(text.encode()).hexdigest()
-    _check_resumable(out_dir, spec, text_hash, resume)
-    start = time.perf_counter()
-    runs_path = out_dir / RUNS_FILE
-    records = read_records(runs_path) if resume else {}
-    if not resume:
-        runs_path.write_text("")
-    pending = [i for i in range(spec.runs) if i not in records]
+    preload = ["stt_drake.campaign", *(["stt_drake.run"] if spec.kind == "randomisation" else [])]
+    backend = open_backend(workers, scheduler, preload, dask_timeout)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        with folder_lock(out_dir):
+            check_resumable(out_dir, spec, text_hash, resume)
+            source = (text, name, scenario)
+            options = (resume, chunk_size, progress, figures)
+            return _run_locked(spec, out_dir, backend, source, closed_loop, *options)
+    finally:
+        backend.close()
 
+
+def _run_locked(
+    spec: CampaignSpec,
+    out_dir: Path,
+    backend: Backend,
+    source: tuple[str, str, Any],
+    closed_loop: ClosedLoop | None,
+    resume: bool,
+    chunk_size: int | None,
+    progress: bool,
+    figures: bool,
+) -> CampaignOutcome:
+    """The campaign in its locked folder, the backend open: simulate the closed loop (or
+    reuse it), read the runs done, run the rest, summarise."""
+    text, name, scenario = source
+    start = time.perf_counter()
     closed_loop_summary: dict[str, Any] | None = None
     randomising = spec.kind == "randomisation"
     if not randomising:
         closed_loop, closed_loop_summary = _closed_loop(scenario, out_dir, closed_loop, resume)
-        task: Callable[..., list[dict[str, Any]]] = sample_true_obstacles
+        task: Callable[..., list[Record]] = sample_true_obstacles
         task_args: tuple[Any, ...] = (closed_loop, spec.motion, spec.tau)
         size, failed, label = chunk_size or 250, output_collided, "collided"
+        count, steps = closed_loop.count, len(closed_loop.t)
+
+        def shaped(record: Record) -> bool:
+            return is_true_obstacle_record(record, count, steps)
     else:
         task, task_args = randomisation_task, (text, name)
         size, failed, label = chunk_size or 1, draw_failed, "failures"
+        shaped = is_randomisation_record
         (out_dir / FAILURES_DIR).mkdir(exist_ok=True)
 
     from tqdm import tqdm
 
+    runs_path = out_dir / RUNS_FILE
+    if resume:
+        records, malformed = load_runs(
+            runs_path, lambda r: r["seed"] == run_seed(spec.seed, r["run"]) and shaped(r)
+        )
+    else:
+        runs_path.write_text("")
+        records, malformed = {}, 0
+    if malformed:
+        tqdm.write(
+            f"stt-drake campaign: {runs_path}: {malformed} malformed line(s) skipped "
+            "(not a run record of this campaign); their runs are redone",
+            file=sys.stderr,
+        )
     done = [records[i] for i in range(spec.runs) if i in records]
     bar = tqdm(
         total=spec.runs,
@@ -248,7 +232,7 @@ def run_campaign(
 
     with runs_path.open("a") as stream:
 
-        def on_records(batch: list[dict[str, Any]]) -> None:
+        def on_records(batch: list[Record]) -> None:
             nonlocal failures
             for record in batch:
                 if failed(record):
@@ -258,17 +242,17 @@ def run_campaign(
                         (out_dir / failure_name(record["run"])).write_text(
                             failing_draw_yaml(text, name, record["seed"], spec.seed, record["run"])
                         )
-                stream.write(json.dumps(record) + "\n")
+                stream.write(strict_json(record) + "\n")
                 records[record["run"]] = record
             stream.flush()
             bar.update(len(batch))
             bar.set_postfix({label: failures})
 
-        batches = ([(i, run_seed(spec.seed, i)) for i in chunk] for chunk in _chunks(pending, size))
+        def run(batches: Iterator[list[tuple[int, int]]]) -> None:
+            execute(backend, task, task_args, batches, on_records)
+
         try:
-            preload = ["stt_drake.campaign", *(["stt_drake.run"] if randomising else [])]
-            with campaign_executor(workers, scheduler, preload) as (executor, slots):
-                execute(executor, slots, task, task_args, batches, on_records)
+            _run_pending(backend, spec, records, size, run)
         finally:
             bar.close()
 
@@ -282,8 +266,46 @@ def run_campaign(
         closed_loop,
         closed_loop_summary,
         figures,
+        malformed,
     )
     return CampaignOutcome(summary, out_dir, finished)
+
+
+def _run_pending(
+    backend: Backend,
+    spec: CampaignSpec,
+    records: dict[int, Record],
+    size: int,
+    run: Callable[[Iterator[list[tuple[int, int]]]], None],
+) -> None:
+    """Run every run of `spec` not in `records` (which `run`'s records fill), in batches
+    of `size`; a broken local pool is replaced and its runs redone, up to
+    :data:`MAX_POOL_RESTARTS` times in a row without a run finishing."""
+    stalls = 0
+    while True:
+        pending = [i for i in range(spec.runs) if i not in records]
+        before = len(records)
+        batches = ([(i, run_seed(spec.seed, i)) for i in chunk] for chunk in _chunks(pending, size))
+        try:
+            run(batches)
+            return
+        except BrokenProcessPool:
+            stalls = 0 if len(records) > before else stalls + 1
+            recorded = f"{len(records)} of {spec.runs} runs are recorded"
+            if stalls >= MAX_POOL_RESTARTS or not backend.restartable:
+                raise CampaignStoppedError(
+                    f"a local worker process died {stalls} times in a row before any run "
+                    f"finished (killed, out of memory or a crash in native code); {recorded}"
+                ) from None
+            from tqdm import tqdm
+
+            tqdm.write(
+                "stt-drake campaign: a worker process died (killed, out of memory or a crash "
+                f"in native code); {recorded}, the other {spec.runs - len(records)} go to a "
+                "fresh pool",
+                file=sys.stderr,
+            )
+            backend.restart()
 
 
 def _closed_loop(
@@ -294,7 +316,14 @@ def _closed_loop(
     path = out_dir / CLOSED_LOOP_FILE
     summary_path = out_dir / "closed_loop.json"
     if resume and given is None and path.exists() and summary_path.exists():
-        return ClosedLoop.load(path), json.loads(summary_path.read_text())
+        try:
+            return ClosedLoop.load(path), json.loads(summary_path.read_text())
+        except (OSError, ValueError, KeyError) as error:  # re-simulated below
+            print(
+                f"stt-drake campaign: {path} or {summary_path} unreadable ({error}); "
+                "simulating the closed loop again",
+                file=sys.stderr,
+            )
     if given is None:
         from stt_drake.run import simulate
 
@@ -310,5 +339,5 @@ def _closed_loop(
     else:
         summary = {"simulations": 0, "given": True}
     given.save(path)
-    summary_path.write_text(json.dumps(summary, indent=2) + "\n")
+    write_json(summary_path, summary)
     return given, summary

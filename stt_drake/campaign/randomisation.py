@@ -11,6 +11,8 @@ import re
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
+from stt_drake.core.invariants import INVARIANT_NAMES
+
 if TYPE_CHECKING:
     from stt_drake.config import Scenario
 
@@ -61,6 +63,37 @@ def randomisation_task(
 
     schema = parse_schema(text, name)
     return [randomisation_run(schema, index, seed) for index, seed in runs]
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def is_randomisation_record(record: dict[str, Any]) -> bool:
+    """Whether a record read back from ``runs.jsonl`` has the shape
+    :func:`randomisation_run` gives (its status and that status's keys and types)."""
+    status = record.get("status")
+    if status in ("rejected", "error"):
+        return isinstance(record.get("reason"), str)
+    if status != "simulated":
+        return False
+    invariants = record.get("invariants")
+    if not (isinstance(invariants, dict) and set(invariants) == set(INVARIANT_NAMES)):
+        return False
+    for entry in invariants.values():
+        if not (
+            isinstance(entry, dict)
+            and isinstance(entry.get("holds"), bool)
+            and _is_number(entry.get("worst_margin"))
+            and _is_number(entry.get("t_worst"))
+        ):
+            return False
+    t_reach = record.get("t_reach")
+    return (
+        type(record.get("obstacles")) is int
+        and all(isinstance(record.get(key), bool) for key in ("reached", "holds", "success"))
+        and (t_reach is None or _is_number(t_reach))
+    )
 
 
 def draw_failed(record: dict[str, Any]) -> bool:

@@ -7,7 +7,6 @@ Summaries are order-independent functions of the set of runs. The statistics are
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -24,6 +23,7 @@ from stt_drake.core.statistics import (
     family_confidence,
     simultaneous_verdict,
 )
+from stt_drake.runlog import write_json
 
 #: Confidence of every reported interval (jointly, over the whole family of tests).
 CONFIDENCE = 0.99
@@ -163,11 +163,14 @@ def write_summary(
     closed_loop: ClosedLoop | None = None,
     closed_loop_summary: dict[str, Any] | None = None,
     figures: bool = True,
+    malformed_lines: int = 0,
 ) -> dict[str, Any]:
-    """Summarise the finished runs, write campaign.json (and the figure) and return it.
+    """Summarise the finished runs, write campaign.json (strict JSON) and the figure, and
+    return the summary.
 
     `started` is the campaign's ``time.perf_counter()`` start; `closed_loop` and its
-    summary belong to a true-obstacle campaign.
+    summary belong to a true-obstacle campaign; `malformed_lines` counts the lines of
+    ``runs.jsonl`` a resume skipped (their runs were redone).
     """
     randomising = spec.kind == "randomisation"
     if randomising:
@@ -185,9 +188,10 @@ def write_summary(
         "seed": spec.seed,
         "run_seed": "SeedSequence(seed, spawn_key=(i,)).generate_state(1)[0]",
         "wall_time_s": time.perf_counter() - started,
+        "malformed_lines": malformed_lines,
         **body,
     }
-    (out_dir / SUMMARY_FILE).write_text(json.dumps(summary, indent=2) + "\n")
+    write_json(out_dir / SUMMARY_FILE, summary)
     if figures:
         if randomising:
             figure, file = plot_randomisation(summary, records), "randomisation.png"
@@ -318,5 +322,10 @@ def report(summary: dict[str, Any]) -> str:
             lines.append(
                 f"  failing draw: run {failure['run']} seed {failure['seed']} → {failure['yaml']}"
             )
+    if summary.get("malformed_lines"):
+        lines.append(
+            f"  runs.jsonl: {summary['malformed_lines']} malformed line(s) skipped; their runs "
+            "were redone"
+        )
     lines.append("  result: " + ("HOLDS" if summary["holds"] else "DOES NOT HOLD"))
     return "\n".join(lines)

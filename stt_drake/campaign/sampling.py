@@ -165,6 +165,28 @@ def sample_true_obstacles(
     ]
 
 
+def is_true_obstacle_record(record: dict[str, Any], count: int, steps: int) -> bool:
+    """Whether a record read back from ``runs.jsonl`` has the shape
+    :func:`sample_true_obstacles` gives a closed loop of `count` obstacles and `steps`
+    logged times: per check, `count` lists of [start, stop) with 0 ≤ start < stop ≤ steps."""
+    for check in CHECKS:
+        per_obstacle = record.get(check)
+        if not (isinstance(per_obstacle, list) and len(per_obstacle) == count):
+            return False
+        for ranges in per_obstacle:
+            if not isinstance(ranges, list):
+                return False
+            for pair in ranges:
+                if not (
+                    isinstance(pair, list)
+                    and len(pair) == 2
+                    and all(type(k) is int for k in pair)
+                    and 0 <= pair[0] < pair[1] <= steps
+                ):
+                    return False
+    return True
+
+
 def output_collided(record: dict[str, Any]) -> bool:
     """Whether a true-obstacle run's output hit any obstacle."""
     return any(record["output"])

@@ -1,5 +1,6 @@
-"""What a campaign is: :class:`CampaignSpec` (kept as ``campaign_spec.json``), its kinds
-and :class:`CampaignError`, the error for bad campaign input.
+"""What a campaign is: :class:`CampaignSpec` (kept as ``campaign_spec.json``), its kinds,
+:class:`CampaignError`, the error for bad campaign input, and :class:`CampaignStoppedError`,
+the end of a campaign that could not finish.
 
 Its own module so that both the runner (:mod:`stt_drake.campaign.executor`) and the report
 (:mod:`stt_drake.campaign.report`) read it without importing each other.
@@ -17,6 +18,11 @@ KINDS = ("true-obstacles", "randomisation")
 
 class CampaignError(ValueError):
     """Bad campaign input; the message names the option or field."""
+
+
+class CampaignStoppedError(RuntimeError):
+    """The campaign could not go on (its cluster was lost, no worker came, local worker
+    processes kept dying); every run recorded so far is kept in ``runs.jsonl``."""
 
 
 @dataclass(frozen=True)

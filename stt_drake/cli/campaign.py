@@ -1,16 +1,42 @@
 """`stt-drake campaign SCENARIO --runs N`: Monte Carlo verification of the probabilistic
-guarantee (the campaigns themselves are :mod:`stt_drake.campaign`)."""
+guarantee (the campaigns themselves are :mod:`stt_drake.campaign`).
+
+Exit codes: 0 the guarantee holds, 1 it does not or the campaign stopped (its message
+ends with the exact command that resumes it), 2 bad input (found before any work).
+"""
 
 from __future__ import annotations
 
 import argparse
+import shlex
 from pathlib import Path
 
+from stt_drake.campaign.backends import DASK_TIMEOUT_S
 from stt_drake.campaign.executor import RUNS_FILE, run_campaign
 from stt_drake.campaign.report import SUMMARY_FILE, report
 from stt_drake.campaign.sampling import MOTIONS
-from stt_drake.campaign.spec import KINDS, CampaignError, CampaignSpec
-from stt_drake.cli.main import BadInputError, CommandError
+from stt_drake.campaign.spec import KINDS, CampaignError, CampaignSpec, CampaignStoppedError
+from stt_drake.cli.main import BadInputError, CommandError, results_folder
+
+_DEFAULT_MOTION, _DEFAULT_TAU = "static", 2.0
+
+
+def resume_command(
+    spec: CampaignSpec, out_dir: Path, workers: int | None = None, scheduler: str | None = None
+) -> str:
+    """The shell command that resumes the campaign of `spec` in `out_dir` on the same
+    `workers` or `scheduler` (defaults left out)."""
+    words = ["stt-drake", "campaign", spec.scenario, "--runs", str(spec.runs)]
+    words += ["--kind", spec.kind, "--seed", str(spec.seed)]
+    if spec.motion != _DEFAULT_MOTION:
+        words += ["--true-obstacle-motion", spec.motion]
+    if spec.tau != _DEFAULT_TAU:
+        words += ["--ou-tau", repr(spec.tau)]
+    if workers is not None:
+        words += ["--workers", str(workers)]
+    if scheduler is not None:
+        words += ["--scheduler", scheduler]
+    return shlex.join([*words, "--out", str(out_dir), "--resume"])
 
 
 def _campaign(args: argparse.Namespace) -> bool:
@@ -24,7 +50,8 @@ def _campaign(args: argparse.Namespace) -> bool:
     )
     out_dir = args.out
     if out_dir is None:
-        out_dir = Path("results") / Path(args.scenario).stem / f"campaign_{args.kind}"
+        stem = Path(args.scenario).stem
+        out_dir = results_folder(stem, "the scenario file's name") / f"campaign_{args.kind}"
     try:
         outcome = run_campaign(
             spec,
@@ -35,14 +62,22 @@ def _campaign(args: argparse.Namespace) -> bool:
             chunk_size=args.chunk_size,
             progress=not args.no_progress,
             figures=not args.no_figures,
+            dask_timeout=args.dask_timeout,
         )
     except CampaignError as error:
         raise BadInputError(f"stt-drake campaign: {error}") from error
-    except KeyboardInterrupt:
-        raise CommandError(
-            f"stt-drake campaign: interrupted; finished runs are in {out_dir / RUNS_FILE}, "
-            "continue with --resume"
-        ) from None
+    except (CampaignStoppedError, KeyboardInterrupt) as error:
+        why = "interrupted" if isinstance(error, KeyboardInterrupt) else str(error)
+        message = f"stt-drake campaign: stopped: {why}"
+        if (out_dir / RUNS_FILE).exists():
+            command = resume_command(spec, out_dir, args.workers, args.scheduler)
+            message += (
+                f"\n  the finished runs are kept in {out_dir / RUNS_FILE}; resume with:"
+                f"\n  {command}"
+            )
+            if args.scheduler is not None:
+                message += "\n  (without --scheduler the remaining runs go to local processes)"
+        raise CommandError(message) from None
     print(report(outcome.summary))
     print(f"  wrote {out_dir / SUMMARY_FILE}")
     return outcome.summary["holds"]
@@ -54,7 +89,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "campaign",
         help="Monte Carlo verification of the probabilistic guarantee",
         description="Exit code 0: no obstacle's guarantee is violated (true-obstacle) / every "
-        "draw held every guarantee (randomisation); 1 otherwise; 2: bad input.",
+        "draw held every guarantee (randomisation); 1 otherwise, or the campaign stopped "
+        "(the message gives the command that resumes it); 2: bad input.",
     )
     parser.add_argument("scenario", type=Path, help="scenario YAML")
     parser.add_argument("--runs", type=int, required=True, help="number of runs")
@@ -69,15 +105,22 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=None, help="local processes (default: cores)")
     where.add_argument("--scheduler", default=None, help="Dask scheduler, e.g. tcp://host:8786")
+    parser.add_argument(
+        "--dask-timeout",
+        type=float,
+        default=DASK_TIMEOUT_S,
+        help="seconds to wait for the Dask scheduler, for a first worker, and at most without "
+        f"any worker while runs are out (default {DASK_TIMEOUT_S:g})",
+    )
     parser.add_argument("--out", type=Path, default=None, help="output folder")
     parser.add_argument("--resume", action="store_true", help="continue the campaign in --out")
     parser.add_argument(
         "--true-obstacle-motion",
         choices=MOTIONS,
-        default="static",
+        default=_DEFAULT_MOTION,
         help="static: ξ drawn once per run; ou: Ornstein-Uhlenbeck ξ(t), same N(0, I) marginal",
     )
-    parser.add_argument("--ou-tau", type=float, default=2.0, help="OU time constant τ (s)")
+    parser.add_argument("--ou-tau", type=float, default=_DEFAULT_TAU, help="OU time constant τ (s)")
     parser.add_argument("--chunk-size", type=int, default=None, help="runs per task")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figure")

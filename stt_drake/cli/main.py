@@ -64,10 +64,11 @@ def load_scenario_arguments(
     args: argparse.Namespace, seed: int | None = None
 ) -> tuple[Scenario, Path]:
     """The scenario named by ``args.scenario`` (loaded with `seed`) and the output folder
-    (``args.out``, default results/<scenario name>/).
+    (``args.out``, default results/<scenario name>/), checked writable before any work.
 
     Raises:
-        BadInputError: if the scenario cannot be read or breaks a rule.
+        BadInputError: if the scenario cannot be read or breaks a rule, its name cannot
+            name a folder inside results/, or the output folder cannot be written.
     """
     from stt_drake.build import load_scenario
     from stt_drake.config import ScenarioError
@@ -76,8 +77,40 @@ def load_scenario_arguments(
         scenario = load_scenario(args.scenario, seed=seed)
     except ScenarioError as error:
         raise BadInputError(f"stt-drake: bad scenario {args.scenario}: {error}") from error
-    out_dir = args.out if args.out is not None else Path("results") / scenario.name
+    out_dir = args.out if args.out is not None else results_folder(scenario.name, "name")
+    check_out_folder(out_dir, "--out" if args.out is not None else "the output folder")
     return scenario, out_dir
+
+
+def results_folder(name: str, what: str) -> Path:
+    """``results/<name>``, the default output folder; `name` (described by `what` in the
+    error) must be one plain folder name, so the folder stays inside ``results/``.
+
+    Raises:
+        BadInputError: for an empty name, ``.``, ``..``, an absolute path or a name with a
+            path separator.
+    """
+    part = Path(name)
+    plain = len(part.parts) == 1 and not part.is_absolute() and not set(name) & {"\\", "\0"}
+    if name in ("", ".", "..") or not plain:
+        raise BadInputError(
+            f"stt-drake: {what} {name!r} cannot name a folder inside results/ (one plain "
+            "folder name, no path separator, not . or ..); pass --out"
+        )
+    return Path("results") / name
+
+
+def check_out_folder(folder: Path, option: str = "--out") -> None:
+    """Refuse an output folder that cannot be written, before any work is done.
+
+    Raises:
+        BadInputError: naming `option` and the reason (:func:`stt_drake.runlog.unwritable_reason`).
+    """
+    from stt_drake.runlog import unwritable_reason
+
+    reason = unwritable_reason(folder)
+    if reason is not None:
+        raise BadInputError(f"stt-drake: {option}: {folder} {reason}")
 
 
 def _parser() -> argparse.ArgumentParser:

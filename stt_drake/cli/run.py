@@ -9,12 +9,29 @@ from __future__ import annotations
 import argparse
 import sys
 
-from stt_drake.cli.main import DEFAULT_SCENARIO, add_scenario_arguments, load_scenario_arguments
+from stt_drake.cli.main import (
+    DEFAULT_SCENARIO,
+    BadInputError,
+    add_scenario_arguments,
+    load_scenario_arguments,
+)
+
+
+def check_seed_argument(seed: int | None, option: str = "--seed") -> None:
+    """Raise BadInputError unless `seed` is None or a seed the scenario's `seed` field
+    could hold (in [0, :data:`stt_drake.config.limits.MAX_SEED`])."""
+    from stt_drake.config.limits import MAX_SEED
+
+    if seed is not None and not 0 <= seed <= MAX_SEED:
+        raise BadInputError(
+            f"stt-drake: {option}: must be an integer in [0, 2^63 − 1] (a seed) (got {seed})"
+        )
 
 
 def _run(args: argparse.Namespace) -> bool:
     from stt_drake.run import simulate, summary, write_outputs
 
+    check_seed_argument(args.seed)
     scenario, out_dir = load_scenario_arguments(args, seed=args.seed)
     result = simulate(scenario, strict=True if args.strict else None)
     written = write_outputs(result, out_dir, figures=not args.no_figures)
@@ -27,7 +44,10 @@ def _run(args: argparse.Namespace) -> bool:
 
         written.append(
             write_meshcat_replay(
-                result.log, out_dir / "replay.html", body_radius=body_radius(scenario.plant)
+                result.log,
+                out_dir / "replay.html",
+                body_radius=body_radius(scenario.plant),
+                host=args.meshcat_host,
             )
         )
     print(summary(result))
@@ -59,5 +79,11 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "--meshcat",
         action="store_true",
         help="also write replay.html, a self-contained Meshcat replay of the run",
+    )
+    parser.add_argument(
+        "--meshcat-host",
+        default="127.0.0.1",
+        help="interface the replay's Meshcat server listens on while it draws (default "
+        "127.0.0.1, the loopback only; '*' for every interface)",
     )
     parser.set_defaults(handler=_run)
