@@ -380,6 +380,28 @@ def test_snapshots_3d_draw_tube_paths_and_obstacles_at_each_instant():
         # one sphere surface per obstacle, darker for larger σ (Reds)
         surfaces = ax.collections
         assert len(surfaces) == belief.count
+        # and one wireframe sphere per obstacle on its ε level set {q̂_j ≤ ε_j} (when that
+        # set is bounded and larger than the obstacle)
+        drawn = 0
+        for j in range(belief.count):
+            level = level_set_radius(belief.epsilon[j], belief.sigma[j], belief.radius[j], 3)
+            shown = belief.radius[j] < level < np.inf
+            drawn += shown
+            on_level_set = [
+                line
+                for line, data in zip(ax.lines, lines_3d(ax), strict=True)
+                if data.shape[1] >= 20
+                and np.allclose(
+                    np.linalg.norm(
+                        data[:, np.all(np.isfinite(data), axis=0)].T - belief.mean[j], axis=1
+                    ),
+                    level,
+                    rtol=0,
+                    atol=1e-9,
+                )
+            ]
+            assert len(on_level_set) == int(shown), j
+        assert drawn >= 1
         brightness = [np.mean(to_rgba_array(s.get_facecolor())[:, :3]) for s in surfaces]
         assert np.argsort(brightness).tolist() == np.argsort(-SIGMA).tolist()
 

@@ -1,4 +1,5 @@
-"""The Meshcat replay loads in headless Chromium and draws the scene (not a blank page)."""
+"""The recorded Meshcat replay (replay.html) loads in headless Chromium and draws the scene
+(not a blank page)."""
 
 from __future__ import annotations
 
@@ -8,8 +9,9 @@ from pathlib import Path
 
 import numpy as np
 from matplotlib.image import imread
+from test_replay import short_scenario
 
-from stt_drake.replay import write_meshcat_replay
+from stt_drake.replay import simulate_live
 
 CHROMIUM_FLAGS = [
     "--headless",
@@ -51,9 +53,9 @@ def _obstacle_red_pixels(image: np.ndarray) -> int:
     return int(np.count_nonzero((red > 0.55) & (red - green > 0.25) & (red - blue > 0.25)))
 
 
-def test_replay_renders_the_scene_in_headless_chromium(run_scenario, tmp_path):
+def test_replay_renders_the_scene_in_headless_chromium(tmp_path):
     replay = tmp_path / "replay.html"
-    write_meshcat_replay(run_scenario("omni_hardware_case1").log, replay)
+    simulate_live(short_scenario("omni_hardware_case1", 3.0), replay)
     blank = tmp_path / "blank.html"
     blank.write_text("<html><body style='background:#ddd'></body></html>")
 

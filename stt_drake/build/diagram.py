@@ -8,6 +8,7 @@ from functools import partial
 from typing import Any
 
 import numpy as np
+from pydrake.geometry import Meshcat, MeshcatVisualizer, MeshcatVisualizerParams, SceneGraph
 from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, OutputPort
 from pydrake.systems.primitives import LogVectorOutput, MatrixGain, Sine, VectorLogSink
@@ -41,6 +42,7 @@ from stt_drake.systems.plants.omni import OmniDriveInterface, OmniRobot
 from stt_drake.systems.plants.quadrotor import Quadrotor
 from stt_drake.systems.sequencer import TargetSequencer
 from stt_drake.systems.tube import SpatiotemporalTube
+from stt_drake.systems.visualizer import PUBLISH_PERIOD, AddTubeVisualizer, draw_task_sets
 
 
 @dataclass
@@ -66,6 +68,7 @@ class PlantHandles:
     log_constants: dict[str, np.ndarray] = field(default_factory=dict)
     report: Callable[[Mapping[str, np.ndarray]], dict[str, Any]] | None = None
     summary: Callable[[Mapping[str, Any]], list[str]] | None = None
+    scene_graph: SceneGraph | None = None
 
 
 @dataclass
@@ -84,6 +87,7 @@ class SttDiagram:
     log_constants: dict[str, np.ndarray] = field(default_factory=dict)
     plant_report: Callable[[Mapping[str, np.ndarray]], dict[str, Any]] | None = None
     plant_summary: Callable[[Mapping[str, Any]], list[str]] | None = None
+    scene_graph: SceneGraph | None = None
 
 
 def add_omni_robot(builder: DiagramBuilder, scenario: Scenario) -> PlantHandles:
@@ -204,7 +208,7 @@ def add_franka(builder: DiagramBuilder, scenario: Scenario) -> PlantHandles:
     measurement, the arm's STT controller, the external jerks and the pick-and-place task
     sequencer."""
     config: FrankaArmConfig = scenario.plant
-    plant, _scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=0.0)
+    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=0.0)
     add_fr3(plant)
     plant.Finalize()
     plant.SetDefaultPositions(np.asarray(config.initial_configuration, dtype=float))
@@ -277,6 +281,7 @@ def add_franka(builder: DiagramBuilder, scenario: Scenario) -> PlantHandles:
             target_set_radius=scenario.target_set_radius,
         ),
         summary=summarize_arm,
+        scene_graph=scene_graph,
     )
 
 
@@ -288,10 +293,49 @@ PLANT_BUILDERS: dict[type, Callable[[DiagramBuilder, Scenario], PlantHandles]] =
 }
 
 
-def build_diagram(scenario: Scenario) -> SttDiagram:
+def add_live_view(
+    builder: DiagramBuilder,
+    scenario: Scenario,
+    meshcat: Meshcat,
+    plant: PlantHandles,
+    tube: OutputPort,
+    belief: OutputPort,
+) -> None:
+    """Draw the run live into `meshcat`: a :class:`~stt_drake.systems.visualizer.TubeVisualizer`
+    (tube, obstacles, their ε and p_d level sets; the robot at y for a plant without a
+    SceneGraph), Drake's `MeshcatVisualizer` for a plant's SceneGraph (the FR3 arm, under
+    ``/stt/arm``), and the initial and target sets."""
+    radius = None
+    if plant.scene_graph is None:
+        for name in ("body_radius", "base_radius"):
+            radius = getattr(scenario.plant, name, radius)
+    AddTubeVisualizer(
+        builder,
+        meshcat,
+        tube,
+        belief,
+        scenario.dimension,
+        len(scenario.obstacles),
+        output=plant.output,
+        robot_radius=None if radius is None else float(radius),
+    )
+    if plant.scene_graph is not None:
+        params = MeshcatVisualizerParams(publish_period=PUBLISH_PERIOD, prefix="/stt/arm")
+        MeshcatVisualizer.AddToBuilder(builder, plant.scene_graph, meshcat, params)
+    draw_task_sets(
+        meshcat,
+        np.asarray(scenario.start, dtype=float),
+        scenario.initial_set_radius,
+        scenario.task_targets(),
+        scenario.target_set_radius,
+    )
+
+
+def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> SttDiagram:
     """The scenario's plant (from :data:`PLANT_BUILDERS`) and its STT loop (:func:`AddStt`)
     connected, and loggers on the plant output, tube, belief, diagnostics, control and
-    margins (DESIGN.md diagram)."""
+    margins (DESIGN.md diagram). With a `meshcat`, the run is also drawn there live
+    (:func:`add_live_view`)."""
     builder = DiagramBuilder()
     plant = PLANT_BUILDERS[type(scenario.plant)](builder, scenario)
     rate = scenario.tube.update_rate_hz
@@ -331,6 +375,8 @@ def build_diagram(scenario: Scenario) -> SttDiagram:
     for name, port in logged.items():
         loggers[name] = LogVectorOutput(port, builder, scenario.log_period)
         loggers[name].set_name(f"{name}_logger")
+    if meshcat is not None:
+        add_live_view(builder, scenario, meshcat, plant, stt.tube, stt.belief)
     diagram = builder.Build()
     diagram.set_name(scenario.name)
     return SttDiagram(
@@ -346,4 +392,5 @@ def build_diagram(scenario: Scenario) -> SttDiagram:
         log_constants=dict(plant.log_constants),
         plant_report=plant.report,
         plant_summary=plant.summary,
+        scene_graph=plant.scene_graph,
     )

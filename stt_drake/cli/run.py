@@ -1,13 +1,13 @@
 """`stt-drake run [SCENARIO]`: simulate one scenario and check every guarantee.
 
-Writes metrics.json, log.npz and the figures (optionally a Meshcat replay) into the out
-folder and prints the run's summary.
+Writes metrics.json, log.npz and the figures into the out folder and prints the run's
+summary; with --meshcat the run is drawn live in Meshcat and its recording saved as
+replay.html.
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 
 from stt_drake.cli.main import (
     DEFAULT_SCENARIO,
@@ -33,23 +33,18 @@ def _run(args: argparse.Namespace) -> bool:
 
     check_seed_argument(args.seed)
     scenario, out_dir = load_scenario_arguments(args, seed=args.seed)
-    result = simulate(scenario, strict=True if args.strict else None)
-    written = write_outputs(result, out_dir, figures=not args.no_figures)
-    if args.meshcat and len(result.log["t"]) == 0:
-        print(
-            "stt-drake: no replay: the run stopped before its first logged sample", file=sys.stderr
-        )
-    elif args.meshcat:
-        from stt_drake.replay import body_radius, write_meshcat_replay
+    strict = True if args.strict else None
+    if args.meshcat:  # drawn live in Meshcat while it runs; the recording is replay.html
+        from stt_drake.replay import simulate_live
 
-        written.append(
-            write_meshcat_replay(
-                result.log,
-                out_dir / "replay.html",
-                body_radius=body_radius(scenario.plant),
-                host=args.meshcat_host,
-            )
+        result, replay = simulate_live(
+            scenario, out_dir / "replay.html", strict, host=args.meshcat_host, announce=True
         )
+    else:
+        result, replay = simulate(scenario, strict=strict), None
+    written = write_outputs(result, out_dir, figures=not args.no_figures)
+    if replay is not None:
+        written.append(replay)
     print(summary(result))
     print(f"  wrote {', '.join(str(p) for p in written)}")
     return result.success
@@ -78,12 +73,13 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--meshcat",
         action="store_true",
-        help="also write replay.html, a self-contained Meshcat replay of the run",
+        help="draw the run live in Meshcat (its URL is printed) and save the recording as "
+        "replay.html, a self-contained Meshcat replay",
     )
     parser.add_argument(
         "--meshcat-host",
         default="127.0.0.1",
-        help="interface the replay's Meshcat server listens on while it draws (default "
+        help="interface the live view's Meshcat server listens on (default "
         "127.0.0.1, the loopback only; '*' for every interface)",
     )
     parser.set_defaults(handler=_run)

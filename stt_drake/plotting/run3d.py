@@ -18,6 +18,7 @@ from stt_drake.plotting.style import (
     _nearest_index,
     _obstacle_colors,
     _sigma_colorbar,
+    level_set_radius,
 )
 from stt_drake.runlog import RunLog
 
@@ -116,7 +117,9 @@ def plot_snapshots_3d(log: Mapping[str, Any], times: Sequence[float] | None = No
 
     Each panel shows every obstacle as the sphere B(μ_j, r_o_j) at its mean, coloured by
     σ_j (darker = more uncertain, as in the paper's Fig. of the UAV study) and labelled
-    with its index when there are at most :data:`_MANY_OBSTACLES`; the tube
+    with its index when there are at most :data:`_MANY_OBSTACLES`, with its ε level set
+    {q̂_j ≤ ε_j} as a translucent wireframe sphere in its colour (when bounded and larger
+    than the obstacle); the tube
     Γ(t) = B(c, r) as a wireframe sphere; the output path y and the centre path so far;
     the start and target sets as wireframe spheres. Panels share one cube of limits around
     the task (start and target sets, output, tube; obstacles outside it are clipped) and a
@@ -143,6 +146,7 @@ def plot_snapshots_3d(log: Mapping[str, Any], times: Sequence[float] | None = No
     panels = len(indices)
     fig = Figure(figsize=(5.2 * panels + 1.2, 5.8), layout="constrained")
     axes = [fig.add_subplot(1, panels, i + 1, projection="3d") for i in range(panels)]
+    level_sets: dict[tuple[float, float, float], float] = {}
     for ax, index in zip(axes, indices, strict=True):
         for j in range(run.count):
             color = cmap(norm(run.sigma[index, j]))
@@ -155,6 +159,21 @@ def plot_snapshots_3d(log: Mapping[str, Any], times: Sequence[float] | None = No
                 shade=True,
                 axlim_clip=True,
             )
+            # the ε level set {q̂_j ≤ ε_j}, a ball around the mean (drawn when it is
+            # bounded and larger than the obstacle)
+            key = (float(run.epsilon[index, j]), float(run.sigma[index, j]))
+            key += (float(run.obstacle_radius[index, j]),)
+            if key not in level_sets:
+                level_sets[key] = level_set_radius(*key, 3)
+            level = level_sets[key]
+            if np.isfinite(level) and level > run.obstacle_radius[index, j]:
+                ax.plot(
+                    *_wire_sphere(mean, level, 3 if many else 4),
+                    color=color,
+                    lw=0.4,
+                    alpha=0.45,
+                    axlim_clip=True,
+                )
             if not many:
                 ax.text(*mean, str(j), fontsize=7, ha="center", va="center", axlim_clip=True)
         for center, set_radius, key in (
@@ -188,8 +207,9 @@ def plot_snapshots_3d(log: Mapping[str, Any], times: Sequence[float] | None = No
         Line2D([], [], color=PALETTE["start"], lw=0.8, label="start set"),
         Line2D([], [], color=PALETTE["target"], lw=0.8, label="target set"),
         Patch(fc=cmap(0.6), alpha=surface_alpha, label=r"obstacle $B(\mu_j, r_{o,j})$"),
+        Line2D([], [], color=cmap(0.6), lw=0.4, label=r"$\{\hat q_j \leq \varepsilon_j\}$"),
     ]
-    fig.legend(handles=handles, loc="outside lower center", ncol=6, fontsize=8, frameon=False)
+    fig.legend(handles=handles, loc="outside lower center", ncol=4, fontsize=8, frameon=False)
     if run.count:
         _sigma_colorbar(fig, run, axes, shrink=0.7)
     if run.name:

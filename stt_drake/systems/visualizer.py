@@ -1,0 +1,236 @@
+"""Live Meshcat drawing of the tube and the obstacle belief: :class:`TubeVisualizer`.
+
+The system reads the tube Γ(t) = B(c, r) (port ``tube``, [c, r]) and the obstacle belief
+(port ``obstacle_belief``, layout of :mod:`stt_drake.core.belief`) and, at initialisation
+and every `publish_period`, poses geometry it created once in its constructor:
+
+* ``{prefix}/tube`` (posed) and ``{prefix}/tube/ball`` (scaled) — the tube ball (3D) or
+  disc (2D, in the plane z = 0);
+* ``{prefix}/obstacles/{j}`` (posed at the mean) with ``.../body`` — obstacle j's r_o ball;
+* ``{prefix}/obstacles/{j}/epsilon_set`` and ``.../p_d_set`` — the level sets
+  {q̂_j ≤ ε_j} and {q̂_j ≤ p_d_j} (balls around the mean: the belief is isotropic), drawn
+  translucent, at least r_o (an unbounded set is drawn at r_o);
+* ``{prefix}/robot`` — with a ``output`` port (`robot_radius` given): the robot at y.
+
+Shapes are unit spheres / discs scaled with the ``scale`` property, so a publish only
+sends transforms and (changed) scales, never geometry. Every call passes the context time
+as ``time_in_recording``: while the Meshcat records (``Meshcat.StartRecording``), the
+frames go into its animation, whose time slider is the replay's time display. Live, the
+simulation time is shown by Meshcat's own realtime-rate panel (``SetSimulationTime``) and a
+read-only ``sim time (s)`` slider (pydrake 1.51.1 has no text overlay).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from functools import lru_cache
+
+import numpy as np
+from pydrake.geometry import Cylinder, Meshcat, Rgba, Sphere
+from pydrake.math import RigidTransform
+from pydrake.systems.framework import (
+    Context,
+    DiagramBuilder,
+    EventStatus,
+    LeafSystem,
+    OutputPort,
+)
+from scipy.optimize import brentq
+
+from stt_drake.core.belief import ObstacleBelief, belief_size
+from stt_drake.core.probability import noncentral_chi_sf
+
+#: Default publish period of the live view (s): 30 frames per second.
+PUBLISH_PERIOD = 1.0 / 30.0
+#: Thickness of the 2D discs (m).
+DISC_THICKNESS = 0.02
+#: Name of the live view's time slider.
+TIME_SLIDER = "sim time (s)"
+
+TUBE_COLOR = Rgba(0.12, 0.47, 0.71, 0.3)
+OBSTACLE_COLOR = Rgba(0.84, 0.1, 0.11, 0.9)
+EPSILON_COLOR = Rgba(0.84, 0.1, 0.11, 0.18)
+P_D_COLOR = Rgba(1.0, 0.5, 0.05, 0.12)
+ROBOT_COLOR = Rgba(0.15, 0.15, 0.15, 1.0)
+START_COLOR = Rgba(0.17, 0.63, 0.17, 0.2)
+TARGET_COLOR = Rgba(0.8, 0.65, 0.0, 0.2)
+
+
+@lru_cache(maxsize=4096)
+def level_set_radius(level: float, sigma: float, radius: float, dimension: int) -> float:
+    """Distance d from the mean where q̂ = P(‖x − O‖ ≥ r_o) equals `level` ({q̂ ≤ level} is
+    the ball of radius d): 0 if even the mean has q̂ ≥ level, ``inf`` if q̂ < level
+    everywhere. (The same root as :func:`stt_drake.plotting.level_set_radius`, cached:
+    the belief's σ, r_o, ε, p_d rarely change between publishes.)"""
+    threshold = radius / sigma
+
+    def gap(offset: float) -> float:
+        return float(noncentral_chi_sf(threshold, offset, dimension)) - level
+
+    if gap(0.0) >= 0.0:
+        return 0.0
+    upper = threshold + np.sqrt(dimension) + 10.0
+    for _ in range(60):
+        if gap(upper) >= 0.0:
+            break
+        upper *= 2.0
+    else:
+        return float("inf")
+    return sigma * brentq(gap, 0.0, upper, xtol=1e-10)
+
+
+class TubeVisualizer(LeafSystem):
+    """Draws the tube and the obstacle belief into a :class:`Meshcat` (module docstring).
+
+    Args:
+        meshcat: where to draw.
+        dimension: n (2 or 3).
+        count: number of obstacles on the belief port.
+        publish_period: seconds between publishes.
+        prefix: Meshcat path everything is drawn under.
+        robot_radius: when given, an input port ``output`` (y) and the robot drawn there.
+    """
+
+    def __init__(
+        self,
+        meshcat: Meshcat,
+        dimension: int,
+        count: int,
+        publish_period: float = PUBLISH_PERIOD,
+        prefix: str = "/stt",
+        robot_radius: float | None = None,
+    ) -> None:
+        super().__init__()
+        if dimension not in (2, 3):
+            raise ValueError(f"TubeVisualizer draws 2D or 3D scenes (got dimension {dimension})")
+        self._meshcat = meshcat
+        self._n = dimension
+        self._count = count
+        self._prefix = prefix
+        self._tube = self.DeclareVectorInputPort("tube", dimension + 1)
+        self._belief = self.DeclareVectorInputPort("obstacle_belief", belief_size(count, dimension))
+        self._output = None
+        if robot_radius is not None:
+            self._output = self.DeclareVectorInputPort("output", dimension)
+        self.DeclareInitializationPublishEvent(self._initialize)
+        self.DeclarePeriodicPublishEvent(publish_period, 0.0, self._publish)
+        # Last scale sent per path: a recording keeps a scale until it changes.
+        self._scales: dict[str, float] = {}
+
+        self._shape(f"{prefix}/tube/ball", TUBE_COLOR, layer=3)
+        for j in range(count):
+            base = f"{prefix}/obstacles/{j}"
+            self._shape(f"{base}/body", OBSTACLE_COLOR, layer=2)
+            self._shape(f"{base}/epsilon_set", EPSILON_COLOR, layer=1)
+            self._shape(f"{base}/p_d_set", P_D_COLOR, layer=0)
+        if robot_radius is not None:
+            self._shape(f"{prefix}/robot/body", ROBOT_COLOR, layer=4)
+            meshcat.SetProperty(f"{prefix}/robot/body", "scale", self._scale(robot_radius))
+        meshcat.AddSlider(TIME_SLIDER, 0.0, 1e9, 1e-3, 0.0)
+
+    def _shape(self, path: str, color: Rgba, layer: int) -> None:
+        """A unit ball (3D), or a unit disc a little above z = 0 by `layer` (2D), at
+        `path`/shape. `path` itself only gets a ``scale``: Meshcat's set_transform resets
+        a node's scale, so poses go to its parent."""
+        if self._n == 3:
+            self._meshcat.SetObject(f"{path}/shape", Sphere(1.0), color)
+        else:
+            self._meshcat.SetObject(f"{path}/shape", Cylinder(1.0, DISC_THICKNESS), color)
+            lift = RigidTransform([0.0, 0.0, 0.5 * DISC_THICKNESS * (layer + 1)])
+            self._meshcat.SetTransform(f"{path}/shape", lift)
+
+    def _scale(self, radius: float) -> list[float]:
+        radius = max(float(radius), 1e-6)
+        return [radius, radius, radius if self._n == 3 else 1.0]
+
+    def _lift(self, point: np.ndarray) -> np.ndarray:
+        return np.append(point, 0.0) if self._n == 2 else np.asarray(point, dtype=float)
+
+    def _set_scale(self, path: str, radius: float, t: float) -> None:
+        if self._scales.get(path) != radius:
+            self._scales[path] = radius
+            self._meshcat.SetProperty(path, "scale", self._scale(radius), t)
+
+    def _initialize(self, context: Context, event: object = None) -> EventStatus:
+        self._scales.clear()
+        return self._publish(context)
+
+    def _publish(self, context: Context, event: object = None) -> EventStatus:
+        t = context.get_time()
+        meshcat, prefix = self._meshcat, self._prefix
+        tube = self._tube.Eval(context)
+        meshcat.SetTransform(f"{prefix}/tube", RigidTransform(self._lift(tube[:-1])), t)
+        self._set_scale(f"{prefix}/tube/ball", float(tube[-1]), t)
+        belief = ObstacleBelief.from_vector(self._belief.Eval(context), self._n)
+        for j in range(self._count):
+            base = f"{prefix}/obstacles/{j}"
+            meshcat.SetTransform(base, RigidTransform(self._lift(belief.mean[j])), t)
+            sigma, r_o = float(belief.sigma[j]), float(belief.radius[j])
+            self._set_scale(f"{base}/body", r_o, t)
+            for name, level in (("epsilon_set", belief.epsilon[j]), ("p_d_set", belief.p_d[j])):
+                d = level_set_radius(float(level), sigma, r_o, self._n) if sigma > 0 else r_o
+                self._set_scale(f"{base}/{name}", max(d, r_o) if np.isfinite(d) else r_o, t)
+        if self._output is not None:
+            y = self._output.Eval(context)
+            meshcat.SetTransform(f"{prefix}/robot", RigidTransform(self._lift(y)), t)
+        meshcat.SetSimulationTime(t)
+        meshcat.SetSliderValue(TIME_SLIDER, t)
+        return EventStatus.Succeeded()
+
+
+def AddTubeVisualizer(  # noqa: N802 (Drake's naming of builder functions)
+    builder: DiagramBuilder,
+    meshcat: Meshcat,
+    tube: OutputPort,
+    belief: OutputPort,
+    dimension: int,
+    count: int,
+    output: OutputPort | None = None,
+    robot_radius: float | None = None,
+    publish_period: float = PUBLISH_PERIOD,
+    prefix: str = "/stt",
+) -> TubeVisualizer:
+    """Add a :class:`TubeVisualizer` named "tube_visualizer" to `builder`, wired to the
+    `tube` and `belief` ports (and to `output` when `robot_radius` is given)."""
+    visualizer = builder.AddNamedSystem(
+        "tube_visualizer",
+        TubeVisualizer(meshcat, dimension, count, publish_period, prefix, robot_radius),
+    )
+    builder.Connect(tube, visualizer.GetInputPort("tube"))
+    builder.Connect(belief, visualizer.GetInputPort("obstacle_belief"))
+    if robot_radius is not None:
+        if output is None:
+            raise ValueError("AddTubeVisualizer: robot_radius needs the output port y")
+        builder.Connect(output, visualizer.GetInputPort("output"))
+    return visualizer
+
+
+def draw_task_sets(
+    meshcat: Meshcat,
+    start: np.ndarray,
+    start_radius: float,
+    targets: Sequence[np.ndarray],
+    target_radius: float,
+    prefix: str = "/stt",
+) -> None:
+    """Static translucent balls (3D) or discs (2D) for the initial set and every target
+    set, and a camera aimed at them from above and to the side."""
+    start = np.asarray(start, dtype=float)
+    n = start.size
+    points = []
+    for path, center, radius, color in [
+        (f"{prefix}/start", start, start_radius, START_COLOR),
+        *[
+            (f"{prefix}/target/{i}", np.asarray(c, dtype=float), target_radius, TARGET_COLOR)
+            for i, c in enumerate(targets)
+        ],
+    ]:
+        center = np.append(center, 0.0) if n == 2 else center
+        shape = Sphere(radius) if n == 3 else Cylinder(radius, DISC_THICKNESS)
+        meshcat.SetObject(path, shape, color)
+        meshcat.SetTransform(path, RigidTransform(center))
+        points.append(center)
+    points = np.array(points)
+    low, high = points.min(axis=0), points.max(axis=0)
+    middle, span = 0.5 * (low + high), float(np.max(high - low)) + 1.0
+    meshcat.SetCameraPose(middle + np.array([0.0, -0.9 * span, 1.1 * span]), middle)
