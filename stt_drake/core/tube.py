@@ -349,7 +349,11 @@ class TubeLaw:
         for direction in (escape, goal_direction):
             size = float(np.linalg.norm(direction))
             if size > 1e-9:
-                return self.max_center_speed * direction / size
+                # An infinite v_c (unbounded) makes ċ not finite, as documented: ±inf along
+                # the direction and inf·0 = NaN across it, exactly as the compiled kernel's
+                # IEEE arithmetic gives; that NaN is the intended answer, not a warning.
+                with np.errstate(invalid="ignore"):
+                    return self.max_center_speed * direction / size
         rate = np.zeros_like(center, dtype=float)
         rate[0] = self.max_center_speed
         return rate
