@@ -4,15 +4,26 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint install clean system-packages
+.PHONY: demo test lint install lock clean system-packages
 
-$(STAMP): pyproject.toml
+# pyproject.toml gives compatible ranges; requirements.lock pins the exact versions installed
+# here and in CI (.ci/run calls `make test`), so both stay reproducible.
+$(STAMP): pyproject.toml requirements.lock
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet --upgrade -c requirements.lock pip
+	$(BIN)/python -m pip install --quiet -c requirements.lock -e '.[test]'
 	touch $(STAMP)
 
 install: $(STAMP)
+
+# Regenerate requirements.lock from the venv (after changing a range in pyproject.toml and
+# `pip install --upgrade -e '.[test]'` into it); review the diff before committing it.
+lock: $(STAMP)
+	{ echo "# Exact versions CI installs (\`make install\`: pip install -c requirements.lock -e '.[test]')."; \
+	  echo "# Generated with \`make lock\` (pip freeze --all --exclude-editable of the venv, Python 3.11, Linux"; \
+	  echo "# x86_64); pyproject.toml holds the compatible ranges. Do not edit by hand."; \
+	  $(BIN)/python -m pip freeze --all --exclude-editable; } > requirements.lock.tmp
+	mv requirements.lock.tmp requirements.lock
 
 demo: $(STAMP)
 	$(BIN)/stt-drake run

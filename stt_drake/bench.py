@@ -30,6 +30,7 @@ import platform
 import statistics
 import time
 from collections.abc import Callable
+from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
@@ -47,7 +48,8 @@ COUNTS = (10, 50, 200, 1000)
 SCENARIOS = ("omni_cluttered_50", "uav_cluttered")
 #: The fixed-rate (real-time) tube's update rate the closed loops are also timed at (Hz).
 FIXED_RATE_HZ = 100.0
-DIAGRAMS = Path(__file__).resolve().parent.parent / "diagrams"
+#: The packaged scenarios (``stt_drake.diagrams``, the repository's diagrams/ folder).
+DIAGRAMS = Path(str(files("stt_drake.diagrams")))
 
 #: The issue's targets on a 2-core machine (reported, not enforced).
 TARGETS = {

@@ -107,7 +107,14 @@ class DaskCluster:
 
     def __init__(self, address: str, timeout: float = DASK_TIMEOUT_S) -> None:
         check_scheduler_address(address)
-        from distributed import Client
+        try:  # imported here: only --scheduler needs Dask (the `cluster` extra)
+            from distributed import Client
+        except ImportError as error:
+            raise CampaignError(
+                f"--scheduler needs Dask, which is not installed ({error}); install the "
+                "cluster extra: pip install 'stt-drake[cluster]' (or run without --scheduler "
+                "on local processes)"
+            ) from None
 
         self.address, self.timeout = address, timeout
         try:

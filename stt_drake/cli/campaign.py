@@ -16,7 +16,7 @@ from stt_drake.campaign.executor import RUNS_FILE, run_campaign
 from stt_drake.campaign.report import SUMMARY_FILE, report
 from stt_drake.campaign.sampling import MOTIONS
 from stt_drake.campaign.spec import KINDS, CampaignError, CampaignSpec, CampaignStoppedError
-from stt_drake.cli.main import BadInputError, CommandError, results_folder
+from stt_drake.cli.main import BadInputError, CommandError, resolve_scenario, results_folder
 
 _DEFAULT_MOTION, _DEFAULT_TAU = "static", 2.0
 
@@ -40,6 +40,7 @@ def resume_command(
 
 
 def _campaign(args: argparse.Namespace) -> bool:
+    args.scenario = resolve_scenario(args.scenario)  # a path, or a packaged scenario's name
     spec = CampaignSpec(
         scenario=str(args.scenario),
         kind=args.kind,
@@ -92,7 +93,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "draw held every guarantee (randomisation); 1 otherwise, or the campaign stopped "
         "(the message gives the command that resumes it); 2: bad input.",
     )
-    parser.add_argument("scenario", type=Path, help="scenario YAML")
+    parser.add_argument("scenario", help="scenario YAML, or a packaged scenario's name")
     parser.add_argument("--runs", type=int, required=True, help="number of runs")
     parser.add_argument(
         "--kind",

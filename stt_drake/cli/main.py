@@ -11,17 +11,21 @@ was missed or the run stopped early (its metrics say why), 2 bad input.
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 import sys
 from collections.abc import Sequence
+from importlib.resources import files
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from stt_drake.config import Scenario
 
-#: The scenario `stt-drake run` and `stt-drake diagram` use when none is given.
-DEFAULT_SCENARIO = Path("diagrams/omni_hardware_case1.yaml")
+#: The packaged scenario `stt-drake run` and `stt-drake diagram` use when none is given.
+DEFAULT_SCENARIO = "omni_hardware_case1"
+#: The package holding the scenarios (the repository's diagrams/ folder, shipped in the wheel).
+SCENARIO_PACKAGE = "stt_drake.diagrams"
 
 EXIT_SUCCESS, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
 
@@ -31,6 +35,7 @@ SUBCOMMAND_MODULES: tuple[str, ...] = (
     "stt_drake.cli.campaign",
     "stt_drake.cli.diagram",
     "stt_drake.cli.bench",
+    "stt_drake.cli.list",
 )
 
 
@@ -47,14 +52,47 @@ class BadInputError(CommandError):
     exit_code = EXIT_BAD_INPUT
 
 
+def packaged_scenarios() -> dict[str, Path]:
+    """The scenarios shipped in the package: name (file stem) → file, sorted by name.
+
+    An installed wheel is unpacked (and an editable install maps the repository's
+    diagrams/ folder), so every resource is a real file the loader can open.
+    """
+    folder = Path(str(files(SCENARIO_PACKAGE)))
+    return {path.stem: path for path in sorted(folder.glob("*.yaml"))}
+
+
+def resolve_scenario(scenario: str | Path) -> Path:
+    """The scenario file `scenario` names: an existing path wins; otherwise a packaged
+    scenario's name (``omni_hardware_case1``, also with ``.yaml``).
+
+    Raises:
+        BadInputError: neither an existing file nor a packaged name; the message lists
+            the packaged names closest to it.
+    """
+    path = Path(scenario)
+    if path.exists():
+        return path
+    text = str(scenario)
+    packaged = packaged_scenarios()
+    name = text.removesuffix(".yaml")
+    if name in packaged:
+        return packaged[name]
+    close = difflib.get_close_matches(path.name.removesuffix(".yaml"), packaged, n=5, cutoff=0.5)
+    hint = f"; close packaged names: {', '.join(close)}" if close else ""
+    raise BadInputError(
+        f"stt-drake: {text}: no such scenario file, and no packaged scenario of that name"
+        f"{hint} (`stt-drake list` shows them all)"
+    )
+
+
 def add_scenario_arguments(
     parser: argparse.ArgumentParser, scenario_help: str | None = None
 ) -> None:
-    """Declare the optional positional scenario (default :data:`DEFAULT_SCENARIO`) and
-    ``--out``; read them back with :func:`load_scenario_arguments`."""
-    parser.add_argument(
-        "scenario", nargs="?", type=Path, default=DEFAULT_SCENARIO, help=scenario_help
-    )
+    """Declare the optional positional scenario (a path or a packaged scenario's name,
+    default :data:`DEFAULT_SCENARIO`) and ``--out``; read them back with
+    :func:`load_scenario_arguments`."""
+    parser.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO, help=scenario_help)
     parser.add_argument(
         "--out", type=Path, default=None, help="output folder (default: results/<scenario name>/)"
     )
@@ -63,16 +101,20 @@ def add_scenario_arguments(
 def load_scenario_arguments(
     args: argparse.Namespace, seed: int | None = None
 ) -> tuple[Scenario, Path]:
-    """The scenario named by ``args.scenario`` (loaded with `seed`) and the output folder
-    (``args.out``, default results/<scenario name>/), checked writable before any work.
+    """The scenario named by ``args.scenario`` (a path or a packaged name, see
+    :func:`resolve_scenario`; replaced by the file's path; loaded with `seed`) and the
+    output folder (``args.out``, default results/<scenario name>/), checked writable
+    before any work.
 
     Raises:
-        BadInputError: if the scenario cannot be read or breaks a rule, its name cannot
-            name a folder inside results/, or the output folder cannot be written.
+        BadInputError: if the scenario is not found, cannot be read or breaks a rule, its
+            name cannot name a folder inside results/, or the output folder cannot be
+            written.
     """
     from stt_drake.build import load_scenario
     from stt_drake.config import ScenarioError
 
+    args.scenario = resolve_scenario(args.scenario)
     try:
         scenario = load_scenario(args.scenario, seed=seed)
     except ScenarioError as error:

@@ -12,23 +12,21 @@ from ``models/franka_fr3.urdf``. Around it:
 * :class:`ArmSTTController` — the funnel law of :mod:`stt_drake.core.arm`; the only model
   it holds is the arm's kinematics (:class:`ArmKinematics`, for the Jacobian).
 * :class:`ExternalJerks` — short impulsive wrenches on arm links at given times.
-* :class:`Fr3Drawing` — the arm's geometry in Meshcat, posed from logged joints (replays).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from importlib.resources import files
 from pathlib import Path
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import Meshcat, Rgba, Role
 from pydrake.math import RigidTransform
 from pydrake.multibody.math import SpatialForce
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import (
-    AddMultibodyPlantSceneGraph,
     ExternallyAppliedSpatialForce_,
     MultibodyPlant,
 )
@@ -36,15 +34,16 @@ from pydrake.multibody.tree import BodyIndex, JacobianWrtVariable, ModelInstance
 from pydrake.systems.framework import (
     BasicVector,
     Context,
-    DiagramBuilder,
     LeafSystem,
     ValueProducer,
 )
 
 from stt_drake.core.arm import ArmFunnelLaw
 
-#: The FR3 description written for this project (see the header of the file for sources).
-FR3_MODEL = Path(__file__).resolve().parents[3] / "models" / "franka_fr3.urdf"
+#: The FR3 description written for this project (see the header of the file for sources),
+#: shipped in the package as ``stt_drake.models`` (the repository's models/ folder). An
+#: installed wheel is unpacked, so the resource is a file Drake's Parser can open.
+FR3_MODEL = Path(str(files("stt_drake.models") / "franka_fr3.urdf"))
 #: libfranka's start ("ready") configuration, rad.
 FR3_HOME = np.array([0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4])
 #: Frame whose origin is the end-effector point y: the Franka Hand's TCP.
@@ -339,43 +338,3 @@ class ExternalJerks(LeafSystem):
         t = context.get_time()
         output.SetFromVector(sum((jerk.force_at(t) for jerk in self._jerks), np.zeros(3)))
 
-
-class Fr3Drawing:
-    """The FR3's illustration geometry (primitive shapes of the URDF) in a Meshcat scene,
-    posed from joint positions — for replays drawn from a run log.
-
-    Each body's visuals go under ``{path}/{body name}/{k}`` with their fixed pose in the
-    body; :meth:`body_poses` gives the transform of every ``{path}/{body name}`` for q.
-    """
-
-    def __init__(self, meshcat: Meshcat, path: str) -> None:
-        builder = DiagramBuilder()
-        plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=0.0)
-        add_fr3(plant)
-        plant.Finalize()
-        self._plant = plant
-        self._context = plant.CreateDefaultContext()
-        inspector = scene_graph.model_inspector()
-        self._bodies = []
-        for index in range(plant.num_bodies()):
-            body = plant.get_body(BodyIndex(index))
-            frame = plant.GetBodyFrameIdIfExists(body.index())
-            geometries = [] if frame is None else inspector.GetGeometries(frame, Role.kIllustration)
-            if not geometries:
-                continue
-            body_path = f"{path}/{body.name()}"
-            for k, geometry in enumerate(geometries):
-                color = inspector.GetIllustrationProperties(geometry).GetPropertyOrDefault(
-                    "phong", "diffuse", Rgba(0.9, 0.9, 0.9, 1.0)
-                )
-                meshcat.SetObject(f"{body_path}/{k}", inspector.GetShape(geometry), color)
-                meshcat.SetTransform(f"{body_path}/{k}", inspector.GetPoseInFrame(geometry))
-            self._bodies.append((body_path, body))
-
-    def body_poses(self, q: np.ndarray) -> dict[str, RigidTransform]:
-        """World pose of every drawn body at joint positions q, by Meshcat path."""
-        self._plant.SetPositions(self._context, np.asarray(q, dtype=float))
-        return {
-            path: self._plant.EvalBodyPoseInWorld(self._context, body)
-            for path, body in self._bodies
-        }
