@@ -27,6 +27,7 @@ from collections.abc import Callable
 
 import numpy as np
 from scipy import special
+from scipy.optimize import brentq
 
 from stt_drake.core import backend
 
@@ -316,3 +317,36 @@ def segment_quantile_lower_bound(
     offset = np.maximum(nearest - reach, 0.0) / sigma
     quantile = sigma * noncentral_chi_isf(epsilon, offset, mean.shape[-1])
     return (quantile - spread * (farthest + reach)) / (1.0 + spread) - np.asarray(radius)
+
+
+def level_set_radius(level: float, sigma: float, radius: float, dimension: int) -> float:
+    """Distance d from the mean at which q̂(x) = P(‖x − O‖ ≥ radius) equals `level`.
+
+    q̂ depends on x only through d = ‖x − mean‖ and grows with it, so {q̂ ≤ level} is the
+    closed disc (ball) of radius d around the mean.
+
+    Args:
+        level: probability in (0, 1].
+        sigma: standard deviation of the obstacle centre per axis (> 0), metres.
+        radius: obstacle radius r_o (≥ 0), metres.
+        dimension: n.
+
+    Returns:
+        d in metres: 0 if even the mean has q̂ ≥ level (the set is empty or a point);
+        ``inf`` if q̂ < level everywhere (the set is the whole space).
+    """
+    threshold = radius / sigma
+
+    def gap(offset: float) -> float:
+        return float(noncentral_chi_sf(threshold, offset, dimension)) - level
+
+    if gap(0.0) >= 0.0:
+        return 0.0
+    upper = threshold + np.sqrt(dimension) + 10.0
+    for _ in range(60):
+        if gap(upper) >= 0.0:
+            break
+        upper *= 2.0
+    else:
+        return float("inf")
+    return sigma * brentq(gap, 0.0, upper, xtol=1e-13, rtol=8.0 * np.finfo(float).eps)

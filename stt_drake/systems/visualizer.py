@@ -35,10 +35,9 @@ from pydrake.systems.framework import (
     LeafSystem,
     OutputPort,
 )
-from scipy.optimize import brentq
 
 from stt_drake.core.belief import ObstacleBelief, belief_size
-from stt_drake.core.probability import noncentral_chi_sf
+from stt_drake.core.probability import level_set_radius
 
 #: Default publish period of the live view (s): 30 frames per second.
 PUBLISH_PERIOD = 1.0 / 30.0
@@ -56,27 +55,9 @@ START_COLOR = Rgba(0.17, 0.63, 0.17, 0.2)
 TARGET_COLOR = Rgba(0.8, 0.65, 0.0, 0.2)
 
 
-@lru_cache(maxsize=4096)
-def level_set_radius(level: float, sigma: float, radius: float, dimension: int) -> float:
-    """Distance d from the mean where q̂ = P(‖x − O‖ ≥ r_o) equals `level` ({q̂ ≤ level} is
-    the ball of radius d): 0 if even the mean has q̂ ≥ level, ``inf`` if q̂ < level
-    everywhere. (The same root as :func:`stt_drake.plotting.level_set_radius`, cached:
-    the belief's σ, r_o, ε, p_d rarely change between publishes.)"""
-    threshold = radius / sigma
-
-    def gap(offset: float) -> float:
-        return float(noncentral_chi_sf(threshold, offset, dimension)) - level
-
-    if gap(0.0) >= 0.0:
-        return 0.0
-    upper = threshold + np.sqrt(dimension) + 10.0
-    for _ in range(60):
-        if gap(upper) >= 0.0:
-            break
-        upper *= 2.0
-    else:
-        return float("inf")
-    return sigma * brentq(gap, 0.0, upper, xtol=1e-10)
+#: Level-set radii by (level, σ, r_o, n): the belief's σ, r_o, ε, p_d rarely change
+#: between publishes, and each is a root find.
+_level_set_radius = lru_cache(maxsize=4096)(level_set_radius)
 
 
 class TubeVisualizer(LeafSystem):
@@ -168,7 +149,7 @@ class TubeVisualizer(LeafSystem):
             sigma, r_o = float(belief.sigma[j]), float(belief.radius[j])
             self._set_scale(f"{base}/body", r_o, t)
             for name, level in (("epsilon_set", belief.epsilon[j]), ("p_d_set", belief.p_d[j])):
-                d = level_set_radius(float(level), sigma, r_o, self._n) if sigma > 0 else r_o
+                d = _level_set_radius(float(level), sigma, r_o, self._n) if sigma > 0 else r_o
                 self._set_scale(f"{base}/{name}", max(d, r_o) if np.isfinite(d) else r_o, t)
         if self._output is not None:
             y = self._output.Eval(context)
