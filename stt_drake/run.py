@@ -14,7 +14,6 @@ from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 
 from stt_drake.build.diagram import SttDiagram, build_diagram
 from stt_drake.build.feasibility import scenario_warnings
-from stt_drake.build.laws import make_tube_law
 from stt_drake.config import Scenario
 from stt_drake.core import backend
 from stt_drake.core.belief import ObstacleBelief
@@ -139,7 +138,7 @@ def load_kernels(scenario: Scenario, built: SttDiagram) -> float:
         return 0.0
     start = time.perf_counter()
     n = scenario.dimension
-    law = make_tube_law(scenario)
+    law = built.tube.law  # the law the run uses, built once with the diagram
     vector = scenario.belief_at(0.0).to_vector()
     belief = ObstacleBelief.from_vector(vector, n)
     center = np.asarray(scenario.start, dtype=float)
