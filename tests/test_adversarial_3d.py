@@ -5,8 +5,8 @@ every ``tests/scenarios/uav_*.yaml`` (quadrotor, n = 3) against the outcome its
 Each file is loaded with the library's loader and simulated once; the guarantees are
 recomputed from the raw log with scipy (:func:`adversarial.recomputed_margins`), not read
 from the code under test. Refusals are checked against an admissible period computed from
-the YAML text alone (:func:`adversarial.admissible_period`). Files that expose a library bug
-live in ``tests/scenarios_failing/`` (not collected); each says in its header how it fails.
+the YAML text alone (:func:`adversarial.admissible_period`). A file that exposed a library
+bug states in its header how it failed and why it now meets its expectation.
 """
 
 from __future__ import annotations

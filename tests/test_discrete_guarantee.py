@@ -12,6 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.optimize import brentq
 from scipy.stats import ncx2
 
 from stt_drake.core import backend
@@ -357,3 +358,29 @@ def test_compiled_and_numpy_tube_step_agree_with_inflation_and_circulation():
                 compiled.center_rate, reference.center_rate, rtol=1e-8, atol=1e-10
             )
             assert np.linalg.norm(compiled.center_rate) <= 2.0 * (1 + 1e-12)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_update_leaves_an_epsilon_level_set_it_would_slide_along(compiled):
+    """A centre on a static obstacle's ε level set with the goal behind the obstacle: the
+    law slides round it, so the straight chord to the end of the period's sub-steps cuts
+    into the level set. The update used to halve that chord towards c_k, which lies on the
+    level set, and never moved again (omni_wall_double_20hz stalled so). Now it pulls back
+    to an earlier sub-step's end first: it makes progress, off the level set, and the
+    segment keeps q > ε at every point (scipy, dense)."""
+    sigma, radius, epsilon, p_d = 0.03, 0.2, 0.9, 0.99
+    tube = law([2.0, 0.0], k2=0.4, k3=2.0, r_min=0.1, max_center_speed=1.0)
+    now = belief([0.0, 0.0], sigma, radius, epsilon, p_d)
+    threshold = ((radius + tube.r_min) / sigma) ** 2
+    # Just outside the level set (q − ε = 1e-7), so the update must certify obstacle 0.
+    on_level_set = brentq(
+        lambda d: ncx2.sf(threshold, 2, (d / sigma) ** 2) - epsilon - 1e-7, 0.1, 1.0, xtol=1e-15
+    )
+    heading = np.radians(150.0)
+    center = on_level_set * np.array([np.cos(heading), np.sin(heading)])
+    with backend.pure_numpy(not compiled):
+        update = tube.advance(center, now, 0.05, BeliefRateBounds.still(1))
+    assert np.linalg.norm(update.center - center) > 1e-3
+    for s in np.linspace(0.0, 1.0, 201)[1:]:
+        point = center + s * (update.center - center)
+        assert q_true(point, [0.0, 0.0], sigma, radius + tube.r_min) > epsilon

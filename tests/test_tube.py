@@ -14,6 +14,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
+from scipy.optimize import brentq
 from scipy.special import logsumexp
 from scipy.stats import ncx2
 
@@ -22,6 +23,8 @@ from stt_drake.core.belief import ObstacleBelief
 from stt_drake.core.circulation import null_space_direction
 from stt_drake.core.probability import ball_avoid_probability
 from stt_drake.core.tube import (
+    BOUNDARY_LAYER,
+    LAYER_STEP,
     TubeLaw,
     attraction_flow,
     attraction_reach_time,
@@ -301,6 +304,97 @@ def test_evaluate_past_the_barrier_recovers_at_the_bounded_speed():
     # Without a finite v_c a recovery has no speed: the rate is not finite (the Drake
     # system stops the run and names v_c).
     assert not np.all(np.isfinite(_law([3.0, 0.0], k3=0.0).evaluate(center, belief).center_rate))
+
+
+def _saturated_paper_law_2d(law: TubeLaw, center, belief: ObstacleBelief) -> np.ndarray:
+    """Eq. (4) by hand (attraction + Σ θ_j (k2 m_j + k3 v_j), v_j = m_j turned +90°),
+    scaled down to v_c: the law without its boundary layer."""
+    q = _q_reference(center, belief, law.r_min)
+    rate = law.k1 * _signed_cube_root(law.target - center)
+    for j in range(belief.count):
+        if q[j] <= belief.p_d[j]:
+            theta = 1.0 / q[j] - 1.0 / belief.p_d[j]
+            m = (center - belief.mean[j]) / (q[j] - belief.epsilon[j])
+            rate = rate + theta * (law.k2 * m + law.k3 * np.array([-m[1], m[0]]))
+    speed = np.linalg.norm(rate)
+    return rate * min(1.0, law.max_center_speed / speed)
+
+
+def _distance_at_gap(belief: ObstacleBelief, r_min: float, gap: float) -> float:
+    """The distance from the (single) mean at which q − ε = `gap` (scipy's ncx2 + brentq)."""
+    sigma, n = belief.sigma[0], belief.dimension
+    threshold = ((belief.radius[0] + r_min) / sigma) ** 2
+
+    def excess(d):
+        return ncx2.sf(threshold, n, (d / sigma) ** 2) - belief.epsilon[0] - gap
+
+    return brentq(excess, 1e-6, 10.0, xtol=1e-15, rtol=1e-15)
+
+
+def test_boundary_layer_blends_the_law_into_the_escape_and_is_continuous():
+    """Above the layer ċ is the paper's saturated law; inside it (gap = δ/2, w = 1/2)
+    (1 − w)·law + w·v_c·(c − μ)/‖c − μ‖; at the ε level set the escape alone, reached
+    continuously from above. Before the layer the saturated law left the level set 45°
+    off the normal (k2 = k3) and switched to the radial recovery below it: a jump of
+    ~0.77 v_c that made the integrator chatter."""
+    belief = _belief([[1.0, 0.0]], 0.1, 0.2, 0.9, 0.99)
+    law = replace(_law([3.0, 0.4], k2=0.4, k3=0.4), max_center_speed=0.8)
+    width = BOUNDARY_LAYER * (0.99 - 0.9)
+    direction = np.array([-0.6, -0.8])  # from the mean, not along the goal
+
+    def at_gap(gap):
+        return belief.mean[0] + _distance_at_gap(belief, law.r_min, gap) * direction
+
+    for compiled in (True, False):
+        with backend.pure_numpy(not compiled):
+            above = at_gap(1.01 * width)
+            np.testing.assert_allclose(
+                law.evaluate(above, belief).center_rate,
+                _saturated_paper_law_2d(law, above, belief),
+                rtol=1e-9,
+            )
+            inside = at_gap(0.5 * width)
+            expected = 0.5 * _saturated_paper_law_2d(law, inside, belief) + 0.5 * 0.8 * direction
+            np.testing.assert_allclose(
+                law.evaluate(inside, belief).center_rate, expected, rtol=1e-8, atol=1e-12
+            )
+            # At gap 1e-9 the law keeps a share 1e-9/δ ≈ 1.1e-7 of |law − escape| ≤ 1.6 m/s.
+            just_above = law.evaluate(at_gap(1e-9), belief).center_rate
+            just_below = law.evaluate(at_gap(-1e-9), belief).center_rate
+            np.testing.assert_allclose(just_below, 0.8 * direction, rtol=1e-12, atol=1e-15)
+            assert np.linalg.norm(just_above - just_below) < 1e-6
+    old_jump = _saturated_paper_law_2d(law, at_gap(1e-9), belief) - 0.8 * direction
+    assert np.linalg.norm(old_jump) > 0.5  # what the layer removed
+
+
+def test_boundary_layer_escapes_a_pinch_between_two_level_sets():
+    """Two obstacles 120° apart seen from c, obstacle 0 at its ε level set, obstacle 1
+    inside its layer: the escape raises both q (ċ·(c − μ_j) > 0 for both); the old
+    recovery (obstacle 0 alone) drove the centre into obstacle 1's level set."""
+    first = _belief([[1.0, 0.0]], 0.1, 0.2, 0.9, 0.99)
+    law = replace(_law([0.0, 5.0], k2=0.03, k3=0.03), max_center_speed=1.0)
+    d0 = _distance_at_gap(first, law.r_min, 0.0)
+    d1 = _distance_at_gap(first, law.r_min, 0.3 * BOUNDARY_LAYER * (0.99 - 0.9))
+    u0 = np.array([1.0, 0.0])
+    u1 = np.array([np.cos(2 * np.pi / 3), np.sin(2 * np.pi / 3)])
+    center = np.zeros(2)
+    belief = _belief([center - d0 * u0, center - d1 * u1], 0.1, 0.2, 0.9, 0.99)
+    q = _q_reference(center, belief, law.r_min)
+    assert abs(q[0] - 0.9) < 1e-12 and 0.9 < q[1] < 0.9 + BOUNDARY_LAYER * 0.09
+    for compiled in (True, False):
+        with backend.pure_numpy(not compiled):
+            rate = law.evaluate(center, belief).center_rate
+        assert rate @ u0 > 0.0 and rate @ u1 > 0.0
+        # w_0 = 1 up to q's 1e-12 error over δ = 0.009, so the law's share is ≤ 2e-10.
+        assert np.linalg.norm(rate) == pytest.approx(1.0, rel=1e-9)
+    assert u0 @ u1 < 0.0  # the recovery along u0 alone lowered q_1
+
+
+def test_kernel_boundary_layer_constants_match_the_law_constants():
+    from stt_drake.core import _kernels
+
+    assert _kernels.BOUNDARY_LAYER == BOUNDARY_LAYER
+    assert _kernels.LAYER_STEP == LAYER_STEP
 
 
 def test_center_speed_is_saturated_at_max_center_speed():

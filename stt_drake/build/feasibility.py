@@ -225,25 +225,11 @@ def scenario_warnings(scenario: Scenario) -> list[str]:
             f"saturated controller can follow at {available:.4g} m/s "
             f"(κ₁·ρ_max·r_low with ρ_max = {RHO_MAX:.3g})"
         )
-    escape = escape_speed(speed, scenario.tube.k2, scenario.tube.k3, scenario.dimension)
-    for j in np.flatnonzero(levels >= escape):
+    for j in np.flatnonzero(levels >= speed):
         warnings.append(
             f"claim (ii) cannot be guaranteed for obstacle {j}: its level set may move at "
-            f"{levels[j]:.4g} m/s, not slower than the saturated law's escape speed "
-            f"{escape:.4g} m/s (max_center_speed·k2/√(k2² + k3²) with max_center_speed = "
-            f"{speed:.4g} m/s), so it can overtake the centre"
+            f"{levels[j]:.4g} m/s, not slower than max_center_speed = {speed:.4g} m/s, the "
+            "speed at which the centre leaves an ε level set (the law's boundary layer), so "
+            "it can overtake the centre"
         )
     return warnings
-
-
-def escape_speed(max_center_speed: float, k2: float, k3: float, dimension: int) -> float:
-    """How fast the saturated law moves the centre out of a level set of q_j near ε_j (m/s).
-
-    There θ_j dominates Eq. (4): ċ ∝ k2·m_j + k3·v_j with v_j ⟂ m_j and
-    |v_j| = |m_j| (n ≥ 2), and saturation scales that vector to v_c = `max_center_speed`, so
-    its component along m_j (the direction that raises q_j) is v_c·k2/√(k2² + k3²). In one
-    dimension there is no v_j and it is v_c.
-    """
-    if dimension < 2:
-        return max_center_speed
-    return max_center_speed * k2 / math.hypot(k2, k3)

@@ -41,6 +41,12 @@ from scipy import special
 
 _JIT = {"cache": True, "error_model": "numpy", "nogil": True}
 
+#: :data:`stt_drake.core.tube.BOUNDARY_LAYER` (repeated here: the kernels import nothing of
+#: the package, and numba's cache freezes module globals; a test checks they agree).
+BOUNDARY_LAYER = 0.1
+#: :data:`stt_drake.core.tube.LAYER_STEP` (the same, for the same reason).
+LAYER_STEP = 0.25
+
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 _INV_SQRT_2 = 1.0 / math.sqrt(2.0)
 #: Φ⁻¹(2⁻⁵⁴): for b − a at or below this, 1 − sf ≤ Φ(b − a) ≤ 2⁻⁵⁴ (‖Z‖ ≥ Z·e), so the
@@ -603,9 +609,10 @@ def tube_step(
     :func:`period_avoid_probability`, empty arrays = exact), d̂_j (Eq. (8), always at the
     exact belief; the quantile is skipped where the bound σ(a − Φ⁻¹(ε)) − r_o already
     exceeds `prune_above`, and that bound is returned), θ_j, m_j, v_j; then ċ
-    (Eq. (4)) saturated at max_center_speed, or the recovery velocity when some
-    q_j ≤ ε_j: max_center_speed along Σ_j (c − μ_j)/‖c − μ_j‖ over those j, the direction
-    that increases them fastest; and the soft-min radius (Eq. (14)). `k2`, `k3` hold one
+    (Eq. (4)) over the obstacles with q_j > ε_j, saturated at max_center_speed, blended
+    with the escape velocity by the largest boundary-layer weight w (ċ = (1 − w)·ċ_law +
+    w·ċ_escape; ċ_escape = max_center_speed along Σ_j w_j (c − μ_j)/‖c − μ_j‖, w = 1 at
+    and below an ε level set: the recovery); and the soft-min radius (Eq. (14)). `k2`, `k3` hold one
     gain per obstacle or a single one; `circulation` (m, 3) the chosen axes ω_j in 3D (or
     empty); `constants` is laid out as :data:`TUBE_CONSTANTS` followed by η (few
     arguments: numba's dispatch costs per argument).
@@ -629,7 +636,7 @@ def tube_step(
     goal = np.empty(n)
     rate = np.empty(n)
     escape = np.zeros(n)
-    recovering = False
+    share = 0.0  # the largest boundary-layer weight (tube.boundary_layer_weights)
     no_axis = np.empty(0)
     for i in range(n):
         e = target[i] - center[i]
@@ -660,12 +667,17 @@ def tube_step(
         if qj <= p_d[j]:
             th = 1.0 / qj - 1.0 / p_d[j]
             theta[j] = th
-            if qj <= eps:
-                theta[j] = 1.0 / eps - 1.0 / p_d[j]  # unused in recovery: its largest value
-                recovering = True
+            if max_speed < math.inf:  # the boundary layer (tube.boundary_layer_weights)
+                weight = min(max(1.0 - (qj - eps) / (BOUNDARY_LAYER * (p_d[j] - eps)), 0.0), 1.0)
+            else:  # unbounded: no layer, only the recovery
+                weight = 1.0 if qj <= eps else 0.0
+            if weight > 0.0:
+                share = max(share, weight)
                 if distance > 0.0:
                     for i in range(n):
-                        escape[i] += (center[i] - mean[j, i]) / distance
+                        escape[i] += weight * (center[i] - mean[j, i]) / distance
+            if qj <= eps:
+                theta[j] = 1.0 / eps - 1.0 / p_d[j]  # unused in recovery: its largest value
                 continue
             inv_gap = 1.0 / (qj - eps)
             for i in range(n):
@@ -679,10 +691,15 @@ def tube_step(
                 _add_null_space(rate, m, goal, axis, gain3 * th)
         else:
             theta[j] = 0.0
-    if recovering:
-        _recovery_velocity(rate, escape, goal, max_speed)
-    else:
-        _saturate(rate, max_speed)
+    _saturate(rate, max_speed)
+    if share > 0.0:
+        blended = np.empty(n)
+        _recovery_velocity(blended, escape, goal, max_speed)
+        if share == 1.0:
+            rate[:] = blended
+        else:
+            for i in range(n):
+                rate[i] = (1.0 - share) * rate[i] + share * blended[i]
     return rate, soft_min_radius(d_hat, r_max, nu), q, d_hat, theta
 
 
@@ -816,8 +833,9 @@ def tube_advance(
 ) -> tuple[np.ndarray, np.ndarray, int, float, float]:
     """:meth:`stt_drake.core.tube.TubeLaw.advance` in one call (same steps, same rules):
     sub-steps of the law with the look-ahead bound over 2·duration, each keeping every
-    positive gap at least half; then the segment certificate over one duration, pulled back
-    towards `center` until it holds and the end radius the segment allows
+    positive gap at least half and every boundary-layer weight within LAYER_STEP; then the
+    segment certificate over one duration, pulled back (to the earlier sub-steps' ends, then
+    halved towards `center`) until it holds and the end radius the segment allows
     (:func:`_end_radius_bound`, from `start_radius`; NaN: the first update) stays ≥ r_min;
     then the radius at both ends of the period. `constants` must skip the
     quantiles of the law (prune_above = −∞); `prune_above` is the law's own (the
@@ -841,6 +859,8 @@ def tube_advance(
     step = duration
     accepted = 0
     candidate = np.empty(n)
+    path = np.empty((max_attempts + 1, n))  # the accepted sub-steps' ends, path[0] = c_k
+    path[0] = center
     for _attempt in range(max_attempts):
         if remaining <= 1e-12 * duration or step < duration * 2.0**-30:
             break
@@ -883,11 +903,18 @@ def tube_advance(
             gap = q[j] - epsilon[j]
             if gap > 0.0 and q_c[j] - epsilon[j] < 0.5 * gap:
                 keeps = False
+            if max_speed < math.inf:  # resolve the boundary layer (tube.LAYER_STEP)
+                width = BOUNDARY_LAYER * (p_d[j] - epsilon[j])
+                weight = min(max(1.0 - gap / width, 0.0), 1.0)
+                weight_c = min(max(1.0 - (q_c[j] - epsilon[j]) / width, 0.0), 1.0)
+                if abs(weight_c - weight) > LAYER_STEP:
+                    keeps = False
         if keeps:
             position = candidate.copy()
             rate, q, theta = rate_c, q_c, theta_c
             remaining -= step
             accepted += 1
+            path[accepted] = position
             step *= 2.0
         else:
             step *= 0.5
@@ -908,7 +935,8 @@ def tube_advance(
     certified = np.empty(count, dtype=np.bool_)
     allowed = np.empty(count)
     holds = False
-    for _halving in range(60):
+    back = accepted  # the segment ends at path[back] until that is the first sub-step
+    for _pull in range(accepted + 60):
         holds = True
         length = 0.0
         for i in range(n):
@@ -936,8 +964,12 @@ def tube_advance(
                 holds = False
         if holds:
             break
-        for i in range(n):
-            position[i] = center[i] + 0.5 * (position[i] - center[i])
+        if back > 1:  # an earlier sub-step's end: the path's chords cut less inward
+            back -= 1
+            position = path[back].copy()
+        else:
+            for i in range(n):
+                position[i] = center[i] + 0.5 * (position[i] - center[i])
     if not holds:
         position = center.copy()
         certified[:] = must_hold

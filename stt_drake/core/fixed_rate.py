@@ -28,10 +28,13 @@ The update (:meth:`stt_drake.core.tube.TubeLaw.advance`) at t_k, from the centre
 
 * it integrates the law with the look-ahead lower bound Q^{2h} in place of q_j, in
   sub-steps that keep every positive gap Q^{2h}_j − ε_j at least half of what it was
-  (fraction to the boundary), at |ċ| ≤ v_c, giving c_{k+1};
+  (fraction to the boundary) and change no boundary-layer weight by more than
+  :data:`stt_drake.core.tube.LAYER_STEP` (explicit steps across the layer's steep field
+  would bounce in and out of it, period after period), at |ċ| ≤ v_c, giving c_{k+1};
 * it certifies the straight segment [c_k, c_{k+1}] with Q^h: every obstacle whose
   Q^h_j(c_k) > ε_j must keep the segment's lower bound > ε_j, else c_{k+1} is pulled back
-  towards c_k (c_k itself passes);
+  to the earlier sub-steps' ends (a path that slid along a level set has a chord that
+  cuts into it; a shorter chord cuts less) and then towards c_k (c_k itself passes);
 * the tube output moves linearly from c_k to c_{k+1} over [t_k, t_k + h] (continuous,
   |ċ| ≤ v_c), so q_j(c(t), t) > ε_j at every instant of the period for every certified j.
 

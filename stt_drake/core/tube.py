@@ -9,17 +9,36 @@ Fixes to the printed paper (see DESIGN.md):
 * the radius is the log-sum-exp soft-min r = −(1/ν) ln(e^{−ν r_max} + Σ_j e^{−ν d̂_j}),
   which is always ≤ min(r_max, min_j d̂_j); it stays > 0 only if ν > ln(n_o + 1)/r_min.
 
-Bounded centre, and recovery
-----------------------------
+Bounded centre, boundary layer and recovery
+-------------------------------------------
 |ċ| ≤ v_c = ``max_center_speed`` always: the law's ċ is scaled down to v_c when faster.
-Near q_j = ε_j the term k2·θ_j·m_j dominates and points along c − μ_j, so the saturated
-ċ leaves the ε level set at speed v_c: Theorem 3.2 (ii), part 1, holds as long as that level set
-does not approach faster than v_c (for a translating obstacle, its speed). When some
-q_j ≤ ε_j already (a belief that jumped, a new obstacle, an obstacle faster than v_c) the
-law is in *recovery*: ċ = v_c·u/‖u‖ with u = Σ_{j: q_j ≤ ε_j} (c − μ_j)/‖c − μ_j‖, the
-direction in which those q_j increase fastest (∇_c q_j is along c − μ_j for isotropic
-beliefs), until every q_j > ε_j again. Nothing is floored, so the centre never jumps; the
-invariant monitor reports the violated margins honestly.
+In the paper's law the term k2·θ_j·m_j only dominates very close to q_j = ε_j (with the
+authors' k2 = 0.03 and θ_j ≈ 0.05 it outweighs a 1 m/s attraction only below q_j − ε_j ≈
+2e-3), so the centre rides a stiff 1/(q_j − ε_j) field a hair above the level set, and
+two level sets closing on it (a *pinch*: the escape from one drives it into the other,
+Theorem 3.2 (ii) treats one unbounded term at a time) pushed it across (the authors' 3D
+field with k1 = 0.31: −3e-6 at 8.78 s), after which law and recovery alternated at the
+boundary and the integrator chattered to a stop. So the law has a *boundary layer*
+of width δ_j = BOUNDARY_LAYER·(p_d_j − ε_j) above each ε level set, with weight
+w_j = clip(1 − (q_j − ε_j)/δ_j, 0, 1) (:func:`boundary_layer_weights`):
+
+    ċ = (1 − w)·sat_{v_c}(ċ_law) + w·v_c·u/‖u‖,  w = max_j w_j,  u = Σ_j w_j (c − μ_j)/‖c − μ_j‖,
+
+ċ_law being Eq. (4) over the obstacles with q_j > ε_j. Outside every layer (w = 0) this is
+the paper's law. At and below an ε level set (w_j = 1) it is the *recovery*: v_c along u,
+the direction in which the violated q_j increase fastest (∇_c q_j is along c − μ_j for
+isotropic beliefs), turned away from the obstacles whose layer the centre is in, until
+every q_j > ε_j again. ċ is continuous in c and in the beliefs (w and u are; at w = 1 the
+law's share is 0) except where u = 0 (then the goal direction is used), so no mode
+switch can chatter, and nothing is floored: the centre never
+jumps, and the invariant monitor reports violated margins honestly.
+
+Why the guarantee survives: on the ε level set of obstacle j (w_j = 1),
+∇_c q_j·ċ ∝ ‖u‖⁻¹(1 + Σ_{k≠j} w_k cos∠(c − μ_j, c − μ_k)) v_c, so the centre leaves
+the level set at speed v_c·(that) — the paper's single-obstacle argument (the saturated
+ċ along c − μ_j) is the case of no other layer. Theorem 3.2 (ii) then holds while
+the level set approaches slower than that speed; two level sets meeting head on (cos = −1)
+cannot be escaped by any law that only moves the centre, and the run reports it.
 
 The 3D null-space direction v_j follows a circulation axis per obstacle
 (:mod:`stt_drake.core.circulation`). The fixed-rate (real-time) tube and its discrete-time
@@ -60,6 +79,23 @@ def minimum_nu(obstacle_count: int, r_min: float) -> float:
 def default_nu(obstacle_count: int, r_min: float) -> float:
     """Twice :func:`minimum_nu`: guarantees r ≥ r_min/2 whenever every q_j > ε_j."""
     return 2.0 * minimum_nu(obstacle_count, r_min)
+
+
+#: Width of the boundary layer above each ε level set, as a share of p_d − ε (see the
+#: module docstring, "Bounded centre, and recovery").
+BOUNDARY_LAYER = 0.1
+#: Largest change of any boundary-layer weight w_j in one sub-step of the fixed-rate
+#: update (:meth:`TubeLaw.advance`): the explicit sub-steps resolve the layer.
+LAYER_STEP = 0.25
+
+
+def boundary_layer_weights(
+    avoid_probability: np.ndarray, epsilon: np.ndarray, p_d: np.ndarray
+) -> np.ndarray:
+    """w_j = clip(1 − (q_j − ε_j)/δ_j, 0, 1) with δ_j = BOUNDARY_LAYER·(p_d_j − ε_j): 1 at and
+    below the ε level set, 0 from δ_j above it, linear in between."""
+    width = BOUNDARY_LAYER * (p_d - epsilon)
+    return np.clip(1.0 - (avoid_probability - epsilon) / width, 0.0, 1.0)
 
 
 def signed_cube_root_attraction(
@@ -105,8 +141,9 @@ class TubeEvaluation:
     """Everything the tube law gives at one instant.
 
     Attributes:
-        center_rate: (n,) ċ of Eq. (4) saturated at max_center_speed, or the
-            recovery velocity, m/s.
+        center_rate: (n,) ċ of Eq. (4) saturated at max_center_speed and blended with
+            the escape velocity in the boundary layer (the recovery velocity at and below
+            an ε level set), m/s.
         radius: r of Eq. (14), metres.
         avoid_probability: (m,) q_j(c, t) of Eq. (5) (its period lower bound when the
             law was evaluated with a horizon).
@@ -136,8 +173,9 @@ class TubeLaw:
         nu: soft-min sharpness; must exceed ln(n_o + 1)/r_min for Theorem 3.2 (iii).
         linear_zone: δ of :func:`signed_cube_root_attraction` (metres; 0 = exact cube root).
         max_center_speed: v_c, the bound on |ċ| and the recovery speed (m/s). Infinite
-            means unbounded: a recovery then has no finite speed and its ċ is not finite
-            (the Drake system stops the run and says so).
+            means unbounded: no boundary layer (the paper's law above every ε level set),
+            and a recovery has no finite speed, so its ċ is not finite (the Drake system
+            stops the run and says so).
     """
 
     target: np.ndarray
@@ -313,21 +351,29 @@ class TubeLaw:
         )
         goal_direction = self.target - center
         rate = signed_cube_root_attraction(goal_direction, self.k1, self.linear_zone)
-        if np.any(violated):
-            rate = self._recovery_velocity(center, belief.mean[violated], goal_direction)
-        else:
-            if np.any(active):
-                gap = q[active] - belief.epsilon[active]
-                m = (center - belief.mean[active]) / gap[:, None]
-                axes = None if circulation is None else np.asarray(circulation)[active]
-                v = null_space_direction(m, goal_direction, axes)
-                k2 = np.broadcast_to(self.k2, q.shape)[active]
-                k3 = np.broadcast_to(self.k3, q.shape)[active]
-                weights = theta[active, None]
-                rate = rate + np.sum((k2[:, None] * m + k3[:, None] * v) * weights, axis=0)
-            speed = float(np.linalg.norm(rate))
-            if speed > self.max_center_speed:
-                rate = rate * (self.max_center_speed / speed)
+        law_terms = active & ~violated
+        if np.any(law_terms):
+            gap = q[law_terms] - belief.epsilon[law_terms]
+            m = (center - belief.mean[law_terms]) / gap[:, None]
+            axes = None if circulation is None else np.asarray(circulation)[law_terms]
+            v = null_space_direction(m, goal_direction, axes)
+            k2 = np.broadcast_to(self.k2, q.shape)[law_terms]
+            k3 = np.broadcast_to(self.k3, q.shape)[law_terms]
+            weights = theta[law_terms, None]
+            rate = rate + np.sum((k2[:, None] * m + k3[:, None] * v) * weights, axis=0)
+        speed = float(np.linalg.norm(rate))
+        if speed > self.max_center_speed:
+            rate = rate * (self.max_center_speed / speed)
+        if math.isfinite(self.max_center_speed):
+            layer = boundary_layer_weights(q, belief.epsilon, belief.p_d)
+        else:  # unbounded: no layer, only the recovery
+            layer = violated * 1.0
+        share = float(np.max(layer, initial=0.0))
+        if share > 0.0:
+            escape = self._recovery_velocity(
+                center, belief.mean[layer > 0.0], goal_direction, layer[layer > 0.0]
+            )
+            rate = escape if share == 1.0 else (1.0 - share) * rate + share * escape
         return TubeEvaluation(
             center_rate=rate,
             radius=self.radius(d_hat),
@@ -337,15 +383,18 @@ class TubeLaw:
         )
 
     def _recovery_velocity(
-        self, center: np.ndarray, means: np.ndarray, goal_direction: np.ndarray
+        self,
+        center: np.ndarray,
+        means: np.ndarray,
+        goal_direction: np.ndarray,
+        weights: np.ndarray,
     ) -> np.ndarray:
-        """v_c along Σ (c − μ_j)/‖c − μ_j‖ over the violated obstacles (the goal direction,
-        else e_0, when those cancel)."""
+        """v_c along Σ w_j (c − μ_j)/‖c − μ_j‖ over the obstacles in the boundary layer
+        (the goal direction, else e_0, when those cancel)."""
         offset = center - means
         distance = np.linalg.norm(offset, axis=1, keepdims=True)
-        escape = np.sum(
-            np.where(distance > 0.0, offset / np.where(distance > 0.0, distance, 1.0), 0.0), axis=0
-        )
+        unit = np.where(distance > 0.0, offset / np.where(distance > 0.0, distance, 1.0), 0.0)
+        escape = np.sum(weights[:, None] * unit, axis=0)
         for direction in (escape, goal_direction):
             size = float(np.linalg.norm(direction))
             if size > 1e-9:
@@ -375,9 +424,13 @@ class TubeLaw:
         does not move) in sub-steps at |ċ| ≤ v_c: the attraction's exact flow when no
         obstacle acts, else an explicit step of the law (its linear zone keeps that step
         from overshooting η). A sub-step is accepted only if every positive gap
-        Q^{2h}_j − ε_j stays at least half of what it was, else it is halved; after an
+        Q^{2h}_j − ε_j stays at least half of what it was and every boundary-layer weight
+        changes by at most :data:`LAYER_STEP` (the explicit sub-steps resolve the layer
+        instead of bouncing across it), else it is halved; after an
         accepted one the next may double. Then the segment from `center` to the result is
-        certified with Q^h and pulled back until it is, and until the end radius it allows
+        certified with Q^h and pulled back until it is (to the earlier sub-steps' ends, whose
+        chords cut less into a level set the path slid along, then halved towards
+        `center`), and until the end radius it allows
         (:func:`end_radius_bound`, from `radius`, the tube radius at the start of the
         period; NaN: none yet) is at least r_min for every certified obstacle. The radius
         moves linearly over the period from its start value to the soft-min of those limits
@@ -423,6 +476,7 @@ class TubeLaw:
             self._evaluate(center, belief, "rate", circulation, look_ahead),
         )
         remaining, step, accepted = duration, duration, 0
+        path = [center]  # the accepted sub-steps' ends
         for _attempt in range(max_attempts):
             if remaining <= 1e-12 * duration or step < duration * 2.0**-30:
                 break
@@ -433,10 +487,17 @@ class TubeLaw:
             )
             gap = evaluation.avoid_probability - belief.epsilon
             new_gap = candidate_evaluation.avoid_probability - belief.epsilon
-            if np.all((gap <= 0.0) | (new_gap >= 0.5 * gap)):
+            resolved = True
+            if math.isfinite(self.max_center_speed):
+                layer_change = boundary_layer_weights(
+                    candidate_evaluation.avoid_probability, belief.epsilon, belief.p_d
+                ) - boundary_layer_weights(evaluation.avoid_probability, belief.epsilon, belief.p_d)
+                resolved = bool(np.all(np.abs(layer_change) <= LAYER_STEP))
+            if resolved and np.all((gap <= 0.0) | (new_gap >= 0.5 * gap)):
                 position, evaluation = candidate, candidate_evaluation
                 remaining -= step
                 accepted += 1
+                path.append(position)
                 step *= 2.0
             else:
                 step *= 0.5
@@ -460,7 +521,8 @@ class TubeLaw:
             start_radius = float(radius)  # continuous: the period starts where the last ended
         else:  # the first update, or a belief that left its bounds: the radius drops now
             start_radius = self.radius(at_start)
-        for _halving in range(60):
+        back = accepted  # the segment ends at path[back] until that is the first sub-step
+        for _pull in range(accepted + 60):
             lower = segment_avoid_lower_bound(
                 center, position, belief.mean, belief.sigma, safety_radius, *period
             )
@@ -473,7 +535,11 @@ class TubeLaw:
             )
             if np.all(certified[must_hold]) and np.all(allowed[must_hold] >= self.r_min):
                 break
-            position = center + 0.5 * (position - center)
+            if back > 1:  # an earlier sub-step's end: the path's chords cut less inward
+                back -= 1
+                position = path[back]
+            else:
+                position = center + 0.5 * (position - center)
         else:
             position = center
             certified = must_hold
