@@ -22,13 +22,13 @@ from stt_drake.core.control import FunnelController
 from stt_drake.core.invariants import (
     HOLDS_TOLERANCE,
     InvariantTracker,
+    RecoveryTracker,
     evaluate_invariants_packed,
     reach_story,
 )
 from stt_drake.runlog import RunLog, write_json
 from stt_drake.story import (
     belief_discontinuities,
-    recovery_episodes,
     separation_after_entry,
     target_separation_violations,
 )
@@ -115,14 +115,16 @@ def make_simulator(
     tracker: InvariantTracker,
     strict: bool = False,
     watchdog: StepRateWatchdog | None = None,
+    recoveries: RecoveryTracker | None = None,
 ) -> Simulator:
     """The one place a Simulator is made for a built scenario: the scenario's
     SimulatorConfig, and the invariant monitor attached so every guarantee is checked at
     every step into `tracker` (:meth:`stt_drake.systems.monitor.InvariantMonitor.attach`:
-    `strict` stops at the first violation, `watchdog` bounds the step rate)."""
+    `strict` stops at the first violation, `watchdog` bounds the step rate, `recoveries`
+    collects the recovery episodes)."""
     simulator = Simulator(built.diagram)
     ApplySimulatorConfig(scenario.simulator, simulator)
-    built.monitor.attach(simulator, tracker, strict, watchdog)
+    built.monitor.attach(simulator, tracker, strict, watchdog, recoveries)
     return simulator
 
 
@@ -175,7 +177,8 @@ def simulate(
     built = build_diagram(scenario, meshcat)  # meshcat: also draw the run live there
     tracker = InvariantTracker()
     watchdog = StepRateWatchdog(step_rate_limit(scenario.max_steps_per_second))
-    simulator = make_simulator(built, scenario, tracker, strict, watchdog)
+    recoveries = RecoveryTracker()
+    simulator = make_simulator(built, scenario, tracker, strict, watchdog, recoveries)
     # Kernel compilation (or its on-disk cache's loading) is not simulation: it is done
     # and timed here, before the clock, and reported apart as compile_time_s.
     compile_time = load_kernels(scenario, built)
@@ -245,7 +248,7 @@ def simulate(
         "warnings": warnings,
         "assumptions": assumptions + separation_after_entry(log, t_reach),
         "belief_discontinuities": belief_discontinuities(log),
-        "recovery": recovery_episodes(log),
+        "recovery": recoveries.episodes(),
         "step_rate": {
             "limit_steps_per_s": watchdog.limit,
             "window_steps": watchdog.window_steps,

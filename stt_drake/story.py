@@ -1,7 +1,8 @@
 """What happened during a run beyond the guarantees: the assumptions the scenario broke,
-the belief discontinuities and the tube's recovery episodes (metrics.json keys
-`assumptions`, `belief_discontinuities` and `recovery`; the reach story is
-:func:`stt_drake.core.invariants.reach_story`).
+and the belief discontinuities (metrics.json keys `assumptions` and
+`belief_discontinuities`; the reach story is :func:`stt_drake.core.invariants.reach_story`,
+the recovery episodes :class:`stt_drake.core.invariants.RecoveryTracker`, watched at every
+step).
 
 Pure numpy on the run log (any mapping with the :mod:`stt_drake.runlog` layout, read
 through :class:`~stt_drake.runlog.RunLog`), except :func:`target_separation_violations`,
@@ -71,38 +72,6 @@ def belief_discontinuities(log: Mapping[str, np.ndarray]) -> list[dict[str, Any]
             }
         )
     return records
-
-
-def recovery_episodes(log: Mapping[str, np.ndarray]) -> list[dict[str, Any]]:
-    """Maximal runs of samples with the tube recovering from an obstacle (`recovery` = 1).
-
-    Returns:
-        One record per episode, ordered by obstacle then time: `obstacle` (j), `start_s`
-        (first recovering sample), `end_s` (first sample no longer recovering; None if it
-        still recovers at the last sample) and `worst_margin` (min over the episode's
-        samples of q_j(c) − ε_j, from `avoid_probability` and the logged ε).
-    """
-    run = RunLog.of(log)
-    t = run.t
-    if t.size == 0:
-        return []
-    margin = run.avoid_probability - run.epsilon
-    flags = run.recovery
-    episodes = []
-    for j in range(flags.shape[1]):
-        edges = np.diff(np.concatenate([[0], flags[:, j].astype(int), [0]]))
-        for start, stop in zip(
-            np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True
-        ):
-            episodes.append(
-                {
-                    "obstacle": j,
-                    "start_s": float(t[start]),
-                    "end_s": float(t[stop]) if stop < t.size else None,
-                    "worst_margin": float(np.min(margin[start:stop, j])),
-                }
-            )
-    return episodes
 
 
 def separation_after_entry(

@@ -12,11 +12,15 @@ import pytest
 
 from stt_drake.build import load_scenario
 from stt_drake.config import Obstacle
-from stt_drake.core.invariants import HOLDS_TOLERANCE, reach_story, tube_reach_time
+from stt_drake.core.invariants import (
+    HOLDS_TOLERANCE,
+    RecoveryTracker,
+    reach_story,
+    tube_reach_time,
+)
 from stt_drake.core.motion import ConstantVelocity, Oscillation, Waypoints
 from stt_drake.story import (
     belief_discontinuities,
-    recovery_episodes,
     separation_after_entry,
     target_separation_violations,
 )
@@ -179,18 +183,21 @@ def test_motion_at_exactly_its_rate_bounds_is_not_a_discontinuity():
     assert all(jump["sigma_jump_m"] == pytest.approx(0.004) for jump in ramp)
 
 
-def test_recovery_episodes_with_their_worst_margin_and_one_still_running():
+def test_recovery_tracker_episodes_with_their_worst_margin_and_one_still_running():
+    """Steps at t = 0, 0.1, …, 0.9 with hand-written flags and centre margins."""
     t = 0.1 * np.arange(10)
-    flags = np.zeros((10, 2))
-    flags[2:5, 0] = 1.0
-    flags[7:, 0] = 1.0
-    flags[4:6, 1] = 1.0
-    q = np.full((10, 2), 0.95)
-    q[3, 0], q[8, 0], q[5, 1], q[6, 1] = 0.85, 0.88, 0.89, 0.5
-    mean = np.zeros((10, 2, 2))
-    log = make_log(t, mean, np.full((10, 2), 0.1), [0, 0], [0, 0], q, flags, epsilon=0.9)
-    episodes = recovery_episodes(log)
-    assert episodes == [
+    flags = np.zeros((10, 2), dtype=bool)
+    flags[2:5, 0] = True
+    flags[7:, 0] = True
+    flags[4:6, 1] = True
+    margin = np.full((10, 2), 0.05)
+    margin[3, 0], margin[8, 0], margin[5, 1], margin[6, 1] = -0.05, -0.02, -0.01, -0.4
+    recoveries = RecoveryTracker()
+    assert not recoveries.active
+    for k in range(10):
+        recoveries.update(t[k], flags[k], margin[k])
+    assert recoveries.active  # obstacle 0 still recovers at the last step
+    assert recoveries.episodes() == [
         {
             "obstacle": 0,
             "start_s": pytest.approx(0.2),
@@ -200,17 +207,17 @@ def test_recovery_episodes_with_their_worst_margin_and_one_still_running():
         {
             "obstacle": 0,
             "start_s": pytest.approx(0.7),
-            "end_s": None,  # still recovering at the last sample
+            "end_s": None,  # still recovering at the last step
             "worst_margin": pytest.approx(-0.02),
         },
         {
             "obstacle": 1,
             "start_s": pytest.approx(0.4),
             "end_s": pytest.approx(0.6),
-            "worst_margin": pytest.approx(-0.01),  # q[6] is after the episode
+            "worst_margin": pytest.approx(-0.01),  # the margin at 0.6 is after the episode
         },
     ]
-    assert recovery_episodes(make_log(t, mean, np.full((10, 2), 0.1), [0, 0], [0, 0])) == []
+    assert RecoveryTracker().episodes() == []
 
 
 def test_separation_after_the_final_entry_reports_each_obstacle_below_p_d():

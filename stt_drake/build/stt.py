@@ -117,6 +117,7 @@ def AddStt(  # noqa: N802 (Drake's naming of builder functions)
     builder.Connect(tube_output, controller.GetInputPort("tube"))
     builder.Connect(tube_output, monitor.GetInputPort("tube"))
     builder.Connect(belief, monitor.GetInputPort("obstacle_belief"))
+    builder.Connect(tube.GetOutputPort("recovery"), monitor.GetInputPort("recovery"))
     return SttHandles(
         belief_source=source,
         tube_system=tube,

@@ -159,6 +159,47 @@ class InvariantTracker:
         return {name: record.as_dict() for name, record in self.records.items()}
 
 
+class RecoveryTracker:
+    """The tube's recovery episodes at every integrator step (metrics.json `recovery`).
+
+    An episode of obstacle j is a maximal run of steps with the tube's `recovery` flag j
+    set (continuous tube: q_j(c) ≤ ε_j; fixed-rate tube: a period whose segment could not
+    be certified for j). Watched at every step by the Simulator monitor, so an episode
+    shorter than a log period is recorded too (sampling the logged flag missed them).
+    """
+
+    def __init__(self) -> None:
+        self._open: dict[int, dict[str, float | int | None]] = {}
+        self._closed: list[dict[str, float | int | None]] = []
+
+    @property
+    def active(self) -> bool:
+        """Whether some episode is still open."""
+        return bool(self._open)
+
+    def update(self, t: float, recovering: np.ndarray, margin: np.ndarray) -> None:
+        """Fold in the step that ended at time t: `recovering` (m,) flags and the centre's
+        margins q_j(c) − ε_j (m,). An episode opens at its first flagged step, keeps the
+        smallest margin of its steps and ends at the first step no longer flagged."""
+        for j, flag in enumerate(np.asarray(recovering, dtype=bool).tolist()):
+            episode = self._open.get(j)
+            if flag:
+                if episode is None:
+                    episode = {"obstacle": j, "start_s": float(t), "end_s": None}
+                    episode["worst_margin"] = math.inf
+                    self._open[j] = episode
+                episode["worst_margin"] = min(episode["worst_margin"], float(margin[j]))
+            elif episode is not None:
+                episode["end_s"] = float(t)
+                self._closed.append(self._open.pop(j))
+
+    def episodes(self) -> list[dict[str, float | int | None]]:
+        """Every episode, ordered by obstacle then start: `obstacle`, `start_s`, `end_s`
+        (None while it still runs) and `worst_margin`."""
+        every = self._closed + list(self._open.values())
+        return [dict(e) for e in sorted(every, key=lambda e: (e["obstacle"], e["start_s"]))]
+
+
 @dataclass(frozen=True)
 class ReachStory:
     """When the tube entered and left the target set over a run (logged samples).

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
+import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import (
@@ -16,8 +17,14 @@ from pydrake.systems.framework import (
     ValueProducer,
 )
 
-from stt_drake.core.belief import belief_size
-from stt_drake.core.invariants import INVARIANT_NAMES, InvariantTracker, evaluate_invariants_packed
+from stt_drake.core.belief import ObstacleBelief, belief_size
+from stt_drake.core.invariants import (
+    INVARIANT_NAMES,
+    InvariantTracker,
+    RecoveryTracker,
+    evaluate_invariants_packed,
+)
+from stt_drake.core.probability import avoid_probability
 
 #: Default step-rate limit L (integrator steps per simulated second) of the watchdog, used
 #: when a scenario's ``max_steps_per_second`` is 0. Chosen so that no scenario here runs
@@ -115,10 +122,11 @@ class StepRateWatchdog:
 
 
 class InvariantMonitor(LeafSystem):
-    """Inputs `tube`, `obstacle_belief`, `output` (y); outputs `margins` (one per name in
-    :data:`stt_drake.core.invariants.INVARIANT_NAMES`), `output_avoid_probability` (m) and
-    `tube_avoid_probability` (m). Recomputes every probability itself rather than trusting
-    the tube's diagnostics, so a bug in the tube cannot hide from it."""
+    """Inputs `tube`, `obstacle_belief`, `output` (y) and `recovery` (m, the tube's flags);
+    outputs `margins` (one per name in :data:`stt_drake.core.invariants.INVARIANT_NAMES`),
+    `output_avoid_probability` (m) and `tube_avoid_probability` (m). Recomputes every
+    probability itself rather than trusting the tube's diagnostics, so a bug in the tube
+    cannot hide from it."""
 
     def __init__(self, dimension: int, obstacle_count: int, r_min: float) -> None:
         super().__init__()
@@ -129,6 +137,7 @@ class InvariantMonitor(LeafSystem):
             "obstacle_belief", belief_size(obstacle_count, dimension)
         )
         self._output_port = self.DeclareVectorInputPort("output", dimension)
+        self._recovery_port = self.DeclareVectorInputPort("recovery", obstacle_count)
         self._sample = self.DeclareCacheEntry(
             description="invariant margins",
             value_producer=ValueProducer(
@@ -172,15 +181,24 @@ class InvariantMonitor(LeafSystem):
     def _calc_tube_avoid(self, context: Context, output: BasicVector) -> None:
         output.SetFromVector(self._sample.Eval(context).tube_avoid_probability)
 
+    def center_margins(self, context: Context) -> np.ndarray:
+        """q_j(c) − ε_j per obstacle at the tube centre (buffered radius r_o_j + r_min)."""
+        tube = self._tube_port.Eval(context)
+        belief = ObstacleBelief.from_vector(self._belief_port.Eval(context), self._dimension)
+        q = avoid_probability(tube[:-1], belief.mean, belief.sigma, belief.radius + self._r_min)
+        return q - belief.epsilon
+
     def attach(
         self,
         simulator: Simulator,
         tracker: InvariantTracker,
         strict: bool,
         watchdog: StepRateWatchdog | None = None,
+        recoveries: RecoveryTracker | None = None,
     ) -> Callable[[Context], EventStatus]:
-        """Install a Simulator monitor that folds every step's margins into `tracker` and
-        counts the step in `watchdog`.
+        """Install a Simulator monitor that folds every step's margins into `tracker`, the
+        tube's recovery flags into `recoveries` (with the centre margins, computed only
+        while some flag is set or an episode is open) and counts the step in `watchdog`.
 
         In strict mode the first violation stops the run: ``AdvanceTo`` raises a
         RuntimeError whose message names the invariant, the time and the margin. A tripped
@@ -192,6 +210,10 @@ class InvariantMonitor(LeafSystem):
             context = self.GetMyContextFromRoot(root_context)
             t = context.get_time()
             message = tracker.update(t, self.margins_port.Eval(context))
+            if recoveries is not None:
+                flags = self._recovery_port.Eval(context) > 0.5
+                if recoveries.active or flags.any():
+                    recoveries.update(t, flags, self.center_margins(context))
             if strict and message is not None:
                 # Failed(None, ...): passing a Python LeafSystem here segfaults (DRAKE_NOTES).
                 return EventStatus.Failed(None, message)
