@@ -15,7 +15,9 @@ the numba kernels):
    stage (omni robot, n = 2) and two stages (UAV, n = 3), and the numpy reference path;
 3. the closed loops of ``omni_cluttered_50`` and ``uav_cluttered`` in Drake's Simulator with
    the invariant monitor on (every guarantee checked at every step): simulated time / wall
-   time (real-time factor), the same per CPU second, and derivative evaluations per second;
+   time (real-time factor), the same per CPU second, and derivative evaluations per second,
+   each with the continuous tube and the fixed-rate one (FIXED_RATE_HZ), run in interleaved
+   pairs, and the median ratio fixed-rate / continuous over the pairs;
 4. a PNG of tube-step cost against obstacle count.
 
 :func:`run_benchmark` returns them as one JSON-ready dict; the command's options, its text
@@ -32,7 +34,7 @@ import time
 from collections.abc import Callable
 from importlib.resources import files
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.special import ndtri
@@ -41,6 +43,9 @@ from stt_drake.core import backend
 from stt_drake.core.belief import ObstacleBelief
 from stt_drake.core.probability import avoid_probability
 from stt_drake.core.tube import TubeLaw, default_nu
+
+if TYPE_CHECKING:
+    from stt_drake.config import Scenario
 
 #: Obstacle counts of the tube-step benchmark.
 COUNTS = (10, 50, 200, 1000)
@@ -274,22 +279,16 @@ def bench_controller(repeats: int) -> dict[str, Any]:
     return results
 
 
-def bench_closed_loop(
-    name: str, repeats: int, duration: float | None = None, update_rate_hz: float | None = None
-) -> dict[str, Any]:
-    """Simulate diagrams/<name>.yaml with the invariant monitor on; real-time factors.
-    `update_rate_hz` replaces the scenario's tube update rate (0: continuous; the rate is
-    validated like one written in the file).
-
-    Returns ``{"available": False, ...}`` when the scenario file does not exist.
-    """
+def _closed_loop_scenario(
+    name: str, duration: float | None, update_rate_hz: float | None
+) -> Scenario | None:
+    """diagrams/<name>.yaml loaded, cut to `duration`, with `update_rate_hz` replacing its
+    tube update rate (0: continuous; validated like a rate written in the file); None when
+    the file does not exist."""
     path = DIAGRAMS / f"{name}.yaml"
     if not path.exists():
-        return {"available": False, "reason": f"{path.name} not found"}
+        return None
     from stt_drake.build import load_scenario
-    from stt_drake.build.diagram import build_diagram
-    from stt_drake.core.invariants import InvariantTracker
-    from stt_drake.run import make_simulator
 
     scenario = load_scenario(path)
     if duration is not None:
@@ -299,37 +298,45 @@ def bench_closed_loop(
 
         scenario.tube.update_rate_hz = update_rate_hz
         validate_real_time(scenario)
-    runs = []
-    for _ in range(repeats):
-        built = build_diagram(scenario)
-        tracker = InvariantTracker()
-        simulator = make_simulator(built, scenario, tracker)  # every guarantee, every step
-        simulator.Initialize()
-        wall, cpu = time.perf_counter(), time.process_time()
-        simulator.AdvanceTo(scenario.duration)
-        wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
-        sim_time = simulator.get_context().get_time()
-        evaluations = simulator.get_integrator().get_num_derivative_evaluations()
-        runs.append(
-            {
-                "wall_s": wall,
-                "cpu_s": cpu,
-                "realtime_factor": sim_time / wall,
-                "realtime_factor_cpu": sim_time / cpu if cpu > 0.0 else None,
-                "steps": simulator.get_num_steps_taken(),
-                "derivative_evaluations": evaluations,
-                "derivative_evaluations_per_s": evaluations / wall,
-                "holds": tracker.holds,
-            }
-        )
+    return scenario
 
+
+def _time_closed_loop(scenario: Scenario) -> dict[str, Any]:
+    """One simulation of `scenario` with the invariant monitor on (every guarantee, every
+    step), timed by wall clock and process CPU time."""
+    from stt_drake.build.diagram import build_diagram
+    from stt_drake.core.invariants import InvariantTracker
+    from stt_drake.run import make_simulator
+
+    built = build_diagram(scenario)
+    tracker = InvariantTracker()
+    simulator = make_simulator(built, scenario, tracker)
+    simulator.Initialize()
+    wall, cpu = time.perf_counter(), time.process_time()
+    simulator.AdvanceTo(scenario.duration)
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    sim_time = simulator.get_context().get_time()
+    evaluations = simulator.get_integrator().get_num_derivative_evaluations()
+    return {
+        "wall_s": wall,
+        "cpu_s": cpu,
+        "realtime_factor": sim_time / wall,
+        "realtime_factor_cpu": sim_time / cpu if cpu > 0.0 else None,
+        "steps": simulator.get_num_steps_taken(),
+        "derivative_evaluations": evaluations,
+        "derivative_evaluations_per_s": evaluations / wall,
+        "holds": tracker.holds,
+    }
+
+
+def _closed_loop_summary(scenario: Scenario, runs: list[dict[str, Any]]) -> dict[str, Any]:
     def median(key: str) -> float:
         return statistics.median(run[key] for run in runs)
 
     return {
         "available": True,
         "sim_time_s": scenario.duration,
-        "repeats": repeats,
+        "repeats": len(runs),
         "realtime_factor": median("realtime_factor"),
         "realtime_factor_min": min(run["realtime_factor"] for run in runs),
         "realtime_factor_max": max(run["realtime_factor"] for run in runs),
@@ -340,6 +347,58 @@ def bench_closed_loop(
         "derivative_evaluations_per_s": median("derivative_evaluations_per_s"),
         "holds": all(run["holds"] for run in runs),
     }
+
+
+def bench_closed_loop(
+    name: str, repeats: int, duration: float | None = None, update_rate_hz: float | None = None
+) -> dict[str, Any]:
+    """Simulate diagrams/<name>.yaml `repeats` times with the invariant monitor on; real-time
+    factors. `update_rate_hz` replaces the scenario's tube update rate (0: continuous).
+
+    Returns ``{"available": False, ...}`` when the scenario file does not exist.
+    """
+    scenario = _closed_loop_scenario(name, duration, update_rate_hz)
+    if scenario is None:
+        return {"available": False, "reason": f"{name}.yaml not found"}
+    return _closed_loop_summary(scenario, [_time_closed_loop(scenario) for _ in range(repeats)])
+
+
+def bench_fixed_rate_against_continuous(
+    name: str, repeats: int, duration: float | None = None
+) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
+    """The continuous and the fixed-rate (FIXED_RATE_HZ) loop of diagrams/<name>.yaml, run
+    in interleaved pairs (continuous first in even pairs, fixed-rate first in odd ones), so
+    that the machine's load drifts into both alike: a shared machine's load moves the
+    real-time factor of one loop by ±20 % within minutes, as much as the difference.
+
+    Returns:
+        (continuous, fixed-rate) :func:`bench_closed_loop`-like summaries, and the ratio
+        fixed-rate / continuous of the real-time factor: `median`, `min`, `max` over the
+        pairs and `cpu_median` (of the CPU-time factors).
+    """
+    continuous = _closed_loop_scenario(name, duration, 0.0)
+    fixed = _closed_loop_scenario(name, duration, FIXED_RATE_HZ)
+    if continuous is None or fixed is None:
+        missing = {"available": False, "reason": f"{name}.yaml not found"}
+        return missing, missing, {}
+    pairs = []
+    for k in range(repeats):
+        order = (continuous, fixed) if k % 2 == 0 else (fixed, continuous)
+        timed = {id(scenario): _time_closed_loop(scenario) for scenario in order}
+        pairs.append((timed[id(continuous)], timed[id(fixed)]))
+    ratios = [f["realtime_factor"] / c["realtime_factor"] for c, f in pairs]
+    cpu_ratios = [f["realtime_factor_cpu"] / c["realtime_factor_cpu"] for c, f in pairs]
+    ratio = {
+        "median": statistics.median(ratios),
+        "min": min(ratios),
+        "max": max(ratios),
+        "cpu_median": statistics.median(cpu_ratios),
+    }
+    return (
+        _closed_loop_summary(continuous, [c for c, _ in pairs]),
+        _closed_loop_summary(fixed, [f for _, f in pairs]),
+        ratio,
+    )
 
 
 def profile_closed_loop(name: str, duration: float = 10.0, top: int = 25) -> dict[str, Any]:
@@ -445,11 +504,10 @@ def run_benchmark(
     load_before = os.getloadavg()
     tube = bench_tube_steps(counts, repeats)
     controller = bench_controller(repeats)
-    loops = {}
-    for name in SCENARIOS:  # the continuous loop, then the fixed-rate one, each scenario
-        loops[name] = bench_closed_loop(name, loop_repeats, loop_duration, 0.0)
-        loops[fixed_rate_name(name)] = bench_closed_loop(
-            name, loop_repeats, loop_duration, FIXED_RATE_HZ
+    loops, ratios = {}, {}
+    for name in SCENARIOS:  # the continuous and the fixed-rate loop, in interleaved pairs
+        loops[name], loops[fixed_rate_name(name)], ratios[name] = (
+            bench_fixed_rate_against_continuous(name, loop_repeats, loop_duration)
         )
     plot = scaling_plot(tube, counts, out_dir / "tube_step_scaling.png")
 
@@ -471,11 +529,7 @@ def run_benchmark(
         name: (loop["realtime_factor"] if loop["available"] else "not available")
         for name, loop in loops.items()
     }
-    fixed_over_continuous = {
-        name: loops[fixed_rate_name(name)]["realtime_factor"] / loops[name]["realtime_factor"]
-        for name in SCENARIOS
-        if loops[name]["available"] and loops[fixed_rate_name(name)]["available"]
-    }
+    fixed_over_continuous = {name: ratio["median"] for name, ratio in ratios.items() if ratio}
     result: dict[str, Any] = {
         "tube_step_us": table("typical", "kernel_us"),
         "baseline_tube_step_us": table("typical", "baseline_us"),
@@ -489,7 +543,12 @@ def run_benchmark(
             name: loop.get("derivative_evaluations_per_s", "not available")
             for name, loop in loops.items()
         },
-        "details": {"tube_step": tube, "controller": controller, "closed_loop": loops},
+        "details": {
+            "tube_step": tube,
+            "controller": controller,
+            "closed_loop": loops,
+            "fixed_rate_over_continuous": ratios,
+        },
         "machine": {
             "cpus": os.cpu_count(),
             "load_average_before": load_before,
@@ -543,6 +602,12 @@ def _targets(result: dict[str, Any], counts: tuple[int, ...]) -> dict[str, Any]:
             "value": value,
             "target": f"<= {TARGETS['controller_us']}",
             "met": value <= TARGETS["controller_us"],
+        }
+    for name, ratio in result["fixed_rate_over_continuous"].items():
+        targets[f"{name}_fixed_rate_over_continuous"] = {
+            "value": ratio,
+            "target": ">= 1 (median of interleaved pairs)",
+            "met": ratio >= 1.0,
         }
     factor = result["realtime_factor"].get("omni_cluttered_50")
     if isinstance(factor, float):
