@@ -417,9 +417,17 @@ def test_pure_numpy_block_restores_the_previous_choice():
     assert backend.using_compiled() == before
 
 
-def test_every_dispatched_kernel_exists():
+def test_every_dispatched_kernel_exists_in_its_module():
+    import importlib
+
     for name in backend.KERNELS:
-        assert callable(getattr(kernels, name)), name
+        module = importlib.import_module(
+            f"stt_drake.core.{backend.KERNEL_MODULES.get(name, '_kernels')}"
+        )
+        assert callable(getattr(module, name)), name
+    with backend.pure_numpy(False):
+        for name in backend.KERNEL_MODULES:
+            assert backend.compiled(name, 3).__module__ == "stt_drake.core._anisotropic"
 
 
 @pytest.mark.parametrize("path", [False, True])

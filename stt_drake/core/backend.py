@@ -16,6 +16,7 @@ reference path for the whole process; tests switch per block with :func:`pure_nu
 
 from __future__ import annotations
 
+import importlib
 import os
 import warnings
 from collections.abc import Callable, Iterator
@@ -32,7 +33,8 @@ PURE_NUMPY_ENV = "STT_DRAKE_PURE_NUMPY"
 COMPILED_DIMENSIONS = (1, 2, 3)
 
 #: The compiled kernels the library dispatches to: name of the function in
-#: :mod:`stt_drake.core._kernels` → the output dimensions it covers (:data:`COMPILED_DIMENSIONS`,
+#: :mod:`stt_drake.core._kernels` (or the module :data:`KERNEL_MODULES` names) → the output
+#: dimensions it covers (:data:`COMPILED_DIMENSIONS`,
 #: for which the caller passes n to :func:`compiled`; None: any n, no dimension passed).
 #: The comment names the function whose numpy reference each one replaces.
 KERNELS: dict[str, tuple[int, ...] | None] = {
@@ -47,11 +49,21 @@ KERNELS: dict[str, tuple[int, ...] | None] = {
     "funnel_control": None,  # control.FunnelController.evaluate
     "funnel_control_packed": None,  # control.FunnelController.control_from_tube
     "belief_table": None,  # systems.belief_source.ObstacleBeliefSource.belief_vector
+    "ball_probabilities_array": (2, 3),  # anisotropic.ball_probabilities
+    "avoid_gradient_array": (2, 3),  # anisotropic.avoid_gradient
+    "quantile_radius_array": (2, 3),  # anisotropic.quantile_radius
+}
+
+#: Kernels that live in another compiled module than :mod:`stt_drake.core._kernels`.
+KERNEL_MODULES: dict[str, str] = {
+    "ball_probabilities_array": "_anisotropic",
+    "avoid_gradient_array": "_anisotropic",
+    "quantile_radius_array": "_anisotropic",
 }
 
 _state: dict[str, object] = {
     "pure_numpy": os.environ.get(PURE_NUMPY_ENV, "") not in ("", "0"),
-    "module": None,
+    "modules": {},
 }
 
 
@@ -78,17 +90,17 @@ def compiled(name: str, dimension: int | None = None) -> Callable[..., Any] | No
         return None
     if dimensions is not None and dimension not in dimensions:
         return None
-    module = _module()
+    module = _module(KERNEL_MODULES.get(name, "_kernels"))
     return None if module is None else getattr(module, name)
 
 
-def _module() -> ModuleType | None:
-    """:mod:`stt_drake.core._kernels`, imported on first need (None, after one warning, if
-    numba cannot be imported)."""
-    module = _state["module"]
-    if module is None:
+def _module(name: str) -> ModuleType | None:
+    """The compiled module ``stt_drake.core.<name>``, imported on first need (None, after
+    one warning, if numba cannot be imported)."""
+    modules: dict[str, ModuleType] = _state["modules"]  # type: ignore[assignment]
+    if name not in modules:
         try:
-            from stt_drake.core import _kernels as module
+            modules[name] = importlib.import_module(f"stt_drake.core.{name}")
         except ImportError as error:  # pragma: no cover - numba is a pinned dependency
             warnings.warn(
                 f"stt_drake: compiled kernels unavailable ({error}); using numpy",
@@ -97,8 +109,7 @@ def _module() -> ModuleType | None:
             )
             _state["pure_numpy"] = True
             return None
-        _state["module"] = module
-    return module  # type: ignore[return-value]
+    return modules[name]
 
 
 def using_compiled() -> bool:
