@@ -383,9 +383,12 @@ def bench_fixed_rate_against_continuous(
         return missing, missing, {}
     pairs = []
     for k in range(repeats):
-        order = (continuous, fixed) if k % 2 == 0 else (fixed, continuous)
-        timed = {id(scenario): _time_closed_loop(scenario) for scenario in order}
-        pairs.append((timed[id(continuous)], timed[id(fixed)]))
+        if k % 2 == 0:
+            first = _time_closed_loop(continuous)
+            pairs.append((first, _time_closed_loop(fixed)))
+        else:
+            first = _time_closed_loop(fixed)
+            pairs.append((_time_closed_loop(continuous), first))
     ratios = [f["realtime_factor"] / c["realtime_factor"] for c, f in pairs]
     cpu_ratios = [f["realtime_factor_cpu"] / c["realtime_factor_cpu"] for c, f in pairs]
     ratio = {

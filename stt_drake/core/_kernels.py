@@ -667,8 +667,8 @@ def tube_step(
         if qj <= p_d[j]:
             th = 1.0 / qj - 1.0 / p_d[j]
             theta[j] = th
-            if max_speed < math.inf:  # the boundary layer (tube.boundary_layer_weights)
-                weight = min(max(1.0 - (qj - eps) / (BOUNDARY_LAYER * (p_d[j] - eps)), 0.0), 1.0)
+            if max_speed < math.inf:
+                weight = _layer_weight(qj, eps, p_d[j])
             else:  # unbounded: no layer, only the recovery
                 weight = 1.0 if qj <= eps else 0.0
             if weight > 0.0:
@@ -701,6 +701,12 @@ def tube_step(
             for i in range(n):
                 rate[i] = (1.0 - share) * rate[i] + share * blended[i]
     return rate, soft_min_radius(d_hat, r_max, nu), q, d_hat, theta
+
+
+@njit(**_JIT)
+def _layer_weight(q: float, epsilon: float, p_d: float) -> float:
+    """One obstacle's :func:`stt_drake.core.tube.boundary_layer_weights`."""
+    return min(max(1.0 - (q - epsilon) / (BOUNDARY_LAYER * (p_d - epsilon)), 0.0), 1.0)
 
 
 @njit(**_JIT)
@@ -904,10 +910,10 @@ def tube_advance(
             if gap > 0.0 and q_c[j] - epsilon[j] < 0.5 * gap:
                 keeps = False
             if max_speed < math.inf:  # resolve the boundary layer (tube.LAYER_STEP)
-                width = BOUNDARY_LAYER * (p_d[j] - epsilon[j])
-                weight = min(max(1.0 - gap / width, 0.0), 1.0)
-                weight_c = min(max(1.0 - (q_c[j] - epsilon[j]) / width, 0.0), 1.0)
-                if abs(weight_c - weight) > LAYER_STEP:
+                change = _layer_weight(q_c[j], epsilon[j], p_d[j]) - _layer_weight(
+                    q[j], epsilon[j], p_d[j]
+                )
+                if abs(change) > LAYER_STEP:
                     keeps = False
         if keeps:
             position = candidate.copy()

@@ -82,7 +82,7 @@ def default_nu(obstacle_count: int, r_min: float) -> float:
 
 
 #: Width of the boundary layer above each ε level set, as a share of p_d − ε (see the
-#: module docstring, "Bounded centre, and recovery").
+#: module docstring, "Bounded centre, boundary layer and recovery").
 BOUNDARY_LAYER = 0.1
 #: Largest change of any boundary-layer weight w_j in one sub-step of the fixed-rate
 #: update (:meth:`TubeLaw.advance`): the explicit sub-steps resolve the layer.
