@@ -300,6 +300,11 @@ def test_compiled_and_numpy_updates_agree(n):
         # rounding (1e-9 m leaves room for a few-ulp q difference near a gap threshold).
         np.testing.assert_allclose(compiled.center, reference.center, rtol=0, atol=1e-9)
         np.testing.assert_array_equal(compiled.certified, reference.certified)
+        # θ_j at the new centre with the belief itself, as the law's own evaluation there
+        # gives it (the 3D circulation axes are carried with it).
+        for update in (compiled, reference):
+            at_end = tube.evaluate(update.center, now, circulation=axes).theta
+            np.testing.assert_allclose(update.theta, at_end, rtol=1e-12, atol=1e-15)
 
 
 # --------------------------------------------------------------------------------------

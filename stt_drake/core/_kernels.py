@@ -836,7 +836,7 @@ def tube_advance(
     duration: float,
     start_radius: float,
     max_attempts: int,
-) -> tuple[np.ndarray, np.ndarray, int, float, float]:
+) -> tuple[np.ndarray, np.ndarray, int, float, float, np.ndarray]:
     """:meth:`stt_drake.core.tube.TubeLaw.advance` in one call (same steps, same rules):
     sub-steps of the law with the look-ahead bound over 2·duration, each keeping every
     positive gap at least half and every boundary-layer weight within LAYER_STEP; then the
@@ -849,7 +849,7 @@ def tube_advance(
 
     Returns:
         (c_{k+1}, certified (m,) booleans, accepted sub-steps, r at the start and at the
-        end of the period).
+        end of the period, θ_j at c_{k+1} with the belief itself).
     """
     count, n = mean.shape
     k1 = constants[0]
@@ -987,7 +987,12 @@ def tube_advance(
         allowed,
     )
     end_radius = soft_min_radius(ahead, r_max, nu)
-    return position, certified, accepted, start_radius, end_radius
+    no_inflation = np.empty(0)
+    theta_end = tube_step(
+        position, mean, sigma, radius, epsilon, p_d, k2, k3, no_inflation, no_inflation,
+        circulation, constants,
+    )[4]
+    return position, certified, accepted, start_radius, end_radius, theta_end
 
 
 @njit(**_JIT)

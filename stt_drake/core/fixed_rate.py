@@ -133,6 +133,8 @@ class FixedRateUpdate:
             left its bounds (or this is the first update), when it drops to what the period
             certifies.
         end_radius: r at the end of the period (linear in between).
+        theta: (m,) θ_j at `center` with the belief of the update (what decides which
+            obstacles are active there, e.g. for the 3D circulation axes).
     """
 
     center: np.ndarray
@@ -140,3 +142,4 @@ class FixedRateUpdate:
     substeps: int
     start_radius: float
     end_radius: float
+    theta: np.ndarray

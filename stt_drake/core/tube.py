@@ -451,7 +451,7 @@ class TubeLaw:
         if kernel is not None:
             k2, k3, constants = self._gains_for(count)
             _reach, _spread, axes = _kernel_extras(belief.mean.shape, circulation, None)
-            position, certified, accepted, start_radius, end_radius = kernel(
+            position, certified, accepted, start_radius, end_radius, theta = kernel(
                 center,
                 belief.mean,
                 belief.sigma,
@@ -469,7 +469,9 @@ class TubeLaw:
                 float(radius),
                 max_attempts,
             )
-            return FixedRateUpdate(position, certified, accepted, start_radius, end_radius)
+            return FixedRateUpdate(
+                position, certified, accepted, start_radius, end_radius, theta
+            )
         look_ahead = bounds.inflation(belief.sigma, 2.0 * duration)
         position, evaluation = (
             center,
@@ -546,7 +548,8 @@ class TubeLaw:
             allowed = at_start
         ahead = distance_bound(position, position, look_ahead)
         end_radius = self.radius(np.minimum(allowed, ahead))
-        return FixedRateUpdate(position, certified, accepted, start_radius, end_radius)
+        theta = self.switching_gains(position, belief)
+        return FixedRateUpdate(position, certified, accepted, start_radius, end_radius, theta)
 
     def _displacement(
         self, center: np.ndarray, evaluation: TubeEvaluation, belief: ObstacleBelief, step: float

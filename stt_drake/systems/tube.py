@@ -100,11 +100,12 @@ class SpatiotemporalTube(LeafSystem):
             self._state_index = self.DeclareDiscreteState(
                 _period_state(initial_center, obstacle_count)
             )
-            # The first update at initialisation (t = 0), then every period from t = h.
+            # The first update at initialisation, then every period on the grid k·h with
+            # offset 0 (the grid Drake puts a logger's samples on: fewer update and log times
+            # one rounding apart, each of which costs the integrator a ~1e-15 s step); the
+            # periodic event at t = 0 finds that update done and leaves it.
             self.DeclareInitializationDiscreteUpdateEvent(self._discrete_update)
-            self.DeclarePeriodicDiscreteUpdateEvent(
-                update_period, update_period, self._discrete_update
-            )
+            self.DeclarePeriodicDiscreteUpdateEvent(update_period, 0.0, self._discrete_update)
             tickets = {self.xd_ticket(), self.time_ticket()}
         # The law with the target in use: rebuilt only when the `target` input changes.
         self._target_law = (
@@ -274,9 +275,12 @@ class SpatiotemporalTube(LeafSystem):
     def _discrete_update(self, context: Context, discrete_state: DiscreteValues) -> None:
         law = self._law_in(context)
         belief = self._belief(context)
-        state = context.get_discrete_state(self._state_index).CopyToVector()
+        # `discrete_state` holds the current values: update them in place.
+        state = discrete_state.get_mutable_value(self._state_index)
         n = self._dimension
-        reached = state[n + 1 : 2 * n + 1]  # the centre at this update (end of the last period)
+        if state[2 * n + 2] == context.get_time() and not math.isnan(state[n]):
+            return  # this instant's update is done (initialisation, then the grid at t = 0)
+        reached = state[n + 1 : 2 * n + 1].copy()  # the centre now (end of the last period)
         update = law.advance(
             reached,
             belief,
@@ -288,12 +292,11 @@ class SpatiotemporalTube(LeafSystem):
         state[:n] = reached
         state[n] = update.start_radius
         state[n + 1 : 2 * n + 1] = update.center
-        state[2 * n + 1 : 2 * n + 3] = update.end_radius, context.get_time()
+        state[2 * n + 1] = update.end_radius
+        state[2 * n + 2] = context.get_time()
         state[2 * n + 3 :] = ~update.certified
-        discrete_state.set_value(self._state_index, state)
         if self._circulation_index is not None:
-            theta = law.switching_gains(update.center, belief)
-            self._carry(context, discrete_state, update.center, belief, theta)
+            self._carry(context, discrete_state, update.center, belief, update.theta)
 
 
 def _period_state(center: np.ndarray, count: int, time: float = 0.0) -> np.ndarray:
