@@ -32,6 +32,7 @@ import platform
 import statistics
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from importlib.resources import files
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -59,6 +60,7 @@ DIAGRAMS = Path(str(files("stt_drake.diagrams")))
 #: The issue's targets on a 2-core machine (reported, not enforced).
 TARGETS = {
     "tube_step_50_us": 30.0,
+    "anisotropic_tube_step_50_us": 50.0,
     "speedup_50": 100.0,
     "controller_us": 10.0,
     "omni_cluttered_50_realtime_factor": 20.0,
@@ -138,6 +140,54 @@ def obstacle_field(
         p_d=np.full(count, P_D),
     )
     return law, center, belief
+
+
+def anisotropic_field(
+    count: int, dimension: int, seed: int = 0
+) -> tuple[TubeLaw, np.ndarray, ObstacleBelief]:
+    """:func:`obstacle_field`'s typical field with full covariances: Σ_j = R_j diag(λ) R_jᵀ,
+    the largest standard deviation the σ_j drawn there, the eigenvalue ratio log-uniform in
+    [1, 100], R_j a random rotation; a draw with q_j ≤ ε_j at the centre gets a new one."""
+    from scipy.spatial.transform import Rotation
+
+    from stt_drake.core import anisotropic
+
+    law, center, belief = obstacle_field(count, dimension, seed=seed)
+    rng = np.random.default_rng(seed + 7 * dimension + count)
+    covariances = []
+    for j in range(count):
+        while True:
+            ratio = 10.0 ** rng.uniform(0.0, 2.0)
+            variances = belief.sigma[j] ** 2 * np.geomspace(1.0 / ratio, 1.0, dimension)
+            rotation = Rotation.random(random_state=rng).as_matrix()
+            if dimension == 2:
+                angle = rng.uniform(0.0, np.pi)
+                rotation = np.array(
+                    [[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]]
+                )
+            covariance = rotation @ np.diag(variances) @ rotation.T
+            q = anisotropic.avoid_probability(
+                center, belief.mean[j], covariance, belief.radius[j] + law.r_min
+            )
+            if q > belief.epsilon[j]:
+                covariances.append(covariance)
+                break
+    return law, center, replace(belief, covariance=np.array(covariances))
+
+
+def bench_anisotropic_tube_steps(repeats: int, count: int = 50) -> dict[str, Any]:
+    """One tube step with full covariances (:func:`anisotropic_field`), 2D and 3D."""
+    results: dict[str, Any] = {}
+    for dimension in (2, 3):
+        law, center, belief = anisotropic_field(count, dimension)
+        evaluation = law.evaluate(center, belief)
+        exact = law.evaluate(center, belief, prune=False).quantile_distance
+        results[f"{dimension}d/{count}"] = {
+            "kernel_us": time_call(lambda: law.evaluate(center, belief), repeats),  # noqa: B023
+            "quantiles_computed": int(np.sum(evaluation.quantile_distance == exact)),
+            "active": int(np.sum(evaluation.theta > 0.0)),
+        }
+    return results
 
 
 def baseline_tube_step(
@@ -506,6 +556,7 @@ def run_benchmark(
     """
     load_before = os.getloadavg()
     tube = bench_tube_steps(counts, repeats)
+    anisotropic = bench_anisotropic_tube_steps(repeats)
     controller = bench_controller(repeats)
     loops, ratios = {}, {}
     for name in SCENARIOS:  # the continuous and the fixed-rate loop, in interleaved pairs
@@ -533,8 +584,12 @@ def run_benchmark(
         for name, loop in loops.items()
     }
     fixed_over_continuous = {name: ratio["median"] for name, ratio in ratios.items() if ratio}
+    tube_step_us: dict[str, Any] = table("typical", "kernel_us")
+    tube_step_us["anisotropic"] = {
+        f"{n}d": {"50": anisotropic[f"{n}d/50"]["kernel_us"]["median"]} for n in (2, 3)
+    }
     result: dict[str, Any] = {
-        "tube_step_us": table("typical", "kernel_us"),
+        "tube_step_us": tube_step_us,
         "baseline_tube_step_us": table("typical", "baseline_us"),
         "speedup_vs_baseline": table("typical", "speedup"),
         "worst_case_tube_step_us": table("worst", "kernel_us"),
@@ -548,6 +603,7 @@ def run_benchmark(
         },
         "details": {
             "tube_step": tube,
+            "anisotropic_tube_step": anisotropic,
             "controller": controller,
             "closed_loop": loops,
             "fixed_rate_over_continuous": ratios,
@@ -600,6 +656,12 @@ def _targets(result: dict[str, Any], counts: tuple[int, ...]) -> dict[str, Any]:
                 "target": f">= {TARGETS['speedup_50']}",
                 "met": speedup >= TARGETS["speedup_50"],
             }
+    for n, row in result["tube_step_us"]["anisotropic"].items():
+        targets[f"anisotropic_tube_step_50_{n}_us"] = {
+            "value": row["50"],
+            "target": f"<= {TARGETS['anisotropic_tube_step_50_us']}",
+            "met": row["50"] <= TARGETS["anisotropic_tube_step_50_us"],
+        }
     for name, value in result["controller_us"].items():
         targets[f"controller_{name}_us"] = {
             "value": value,

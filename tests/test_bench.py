@@ -73,6 +73,13 @@ def test_bench_json_report(tmp_path, capsys):
     for key in ("tube_step_us", "baseline_tube_step_us", "speedup_vs_baseline",
                 "worst_case_tube_step_us", "controller_us", "realtime_factor", "targets"):
         assert key in result
+    # full covariances (issue 13): one row per dimension, 50 obstacles, typical field
+    anisotropic = result["tube_step_us"].pop("anisotropic")
+    assert set(anisotropic) == {"2d", "3d"}
+    assert all(set(row) == {"50"} and row["50"] > 0 for row in anisotropic.values())
+    assert {"anisotropic_tube_step_50_2d_us", "anisotropic_tube_step_50_3d_us"} <= set(
+        result["targets"]
+    )
     for table in ("tube_step_us", "baseline_tube_step_us", "speedup_vs_baseline"):
         assert set(result[table]) == {"2d", "3d"}
         for dimension in ("2d", "3d"):

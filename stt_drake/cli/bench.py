@@ -52,6 +52,15 @@ def format_table(result: dict[str, Any]) -> str:
             f"{baseline['median']:>12.0f}{entry['speedup']:>8.0f}×{entry['pruned']:>8}"
             f"{entry['active']:>7}"
         )
+    for key, entry in result["details"]["anisotropic_tube_step"].items():
+        n, count = key.split("/")
+        kernel = entry["kernel_us"]
+        lines.append(
+            f"  {'Σ full':<8}{n:>3}{count:>7}{kernel['median']:>11.2f}{kernel['iqr']:>7.2f}"
+            f"{kernel['cpu_median']:>8.2f}{kernel['median'] / int(count):>10.3f}"
+            f"{'—':>12}{'—':>9}{int(count) - entry['quantiles_computed']:>8}"
+            f"{entry['active']:>7}"
+        )
     lines.append("")
     lines.append("2. one controller evaluation (FunnelController.evaluate), µs, median [IQR]")
     for name, entry in result["details"]["controller"].items():

@@ -52,6 +52,7 @@ KERNELS: dict[str, tuple[int, ...] | None] = {
     "ball_probabilities_array": (2, 3),  # anisotropic.ball_probabilities
     "avoid_gradient_array": (2, 3),  # anisotropic.avoid_gradient
     "quantile_radius_array": (2, 3),  # anisotropic.quantile_radius
+    "anisotropic_tube_step": (2, 3),  # tube.TubeLaw.evaluate with covariances
 }
 
 #: Kernels that live in another compiled module than :mod:`stt_drake.core._kernels`.
@@ -59,6 +60,7 @@ KERNEL_MODULES: dict[str, str] = {
     "ball_probabilities_array": "_anisotropic",
     "avoid_gradient_array": "_anisotropic",
     "quantile_radius_array": "_anisotropic",
+    "anisotropic_tube_step": "_anisotropic_tube",
 }
 
 _state: dict[str, object] = {

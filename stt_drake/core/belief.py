@@ -32,6 +32,11 @@ def belief_size(count: int, dimension: int) -> int:
     return count * record_size(dimension)
 
 
+def covariance_size(count: int, dimension: int) -> int:
+    """Length of the `obstacle_covariance` port vector: each Σ_j row-major, obstacle-major."""
+    return count * dimension * dimension
+
+
 @dataclass(frozen=True)
 class ObstacleBelief:
     """Belief over all obstacles at one instant (arrays over obstacles j).
@@ -42,6 +47,11 @@ class ObstacleBelief:
         radius: (m,) obstacle radius r_o, metres.
         epsilon: (m,) required avoidance probability, in (0, 1].
         p_d: (m,) separation probability of Assumption 3, in (epsilon, 1].
+        covariance: (m, n, n) full covariance Σ_j of each centre (m², symmetric positive
+            definite), or None: Σ_j = sigma_j² I. When given, `sigma` holds √λ_max(Σ_j)
+            (the largest standard deviation) and the tube law uses Σ_j exactly
+            (:mod:`stt_drake.core.anisotropic_tube`). Not part of the belief port's record:
+            the covariances travel on a port of their own (:func:`covariance_size`).
     """
 
     mean: np.ndarray
@@ -49,6 +59,7 @@ class ObstacleBelief:
     radius: np.ndarray
     epsilon: np.ndarray
     p_d: np.ndarray
+    covariance: np.ndarray | None = None
 
     @property
     def count(self) -> int:

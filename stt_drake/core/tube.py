@@ -55,6 +55,7 @@ from functools import cached_property
 import numpy as np
 
 from stt_drake.core import backend
+from stt_drake.core.anisotropic_tube import obstacle_terms
 from stt_drake.core.belief import ObstacleBelief, record_size
 from stt_drake.core.circulation import null_space_direction
 from stt_drake.core.fixed_rate import BeliefRateBounds, FixedRateUpdate, end_radius_bound
@@ -268,6 +269,8 @@ class TubeLaw:
         circulation: np.ndarray | None,
         inflation: tuple[np.ndarray, np.ndarray] | None,
     ) -> TubeEvaluation:
+        if belief.covariance is not None:
+            return self._evaluate_anisotropic(center, belief, mode, circulation, inflation)
         kernel = backend.compiled("tube_step", belief.mean.shape[-1])
         if kernel is None:
             return self._evaluate_numpy(center, belief, mode, circulation, inflation)
@@ -285,6 +288,43 @@ class TubeLaw:
                 k3,
                 reach,
                 spread,
+                axes,
+                constants[mode],
+            )
+        )
+
+    def _evaluate_anisotropic(
+        self,
+        center: np.ndarray,
+        belief: ObstacleBelief,
+        mode: str,
+        circulation: np.ndarray | None,
+        inflation: tuple[np.ndarray, np.ndarray] | None,
+    ) -> TubeEvaluation:
+        """:meth:`_evaluate` with the belief's full covariances
+        (:mod:`stt_drake.core.anisotropic_tube`): one call of the compiled
+        :func:`stt_drake.core._anisotropic_tube.anisotropic_tube_step` for n = 2, 3."""
+        if inflation is not None:
+            raise ValueError(
+                "covariance: the fixed-rate tube's period bounds are for isotropic beliefs "
+                "(sigma) only; run a belief with full covariances in continuous time"
+            )
+        count, n = belief.mean.shape
+        kernel = backend.compiled("anisotropic_tube_step", n)
+        if kernel is None:
+            return self._evaluate_numpy(center, belief, mode, circulation, None)
+        k2, k3, constants = self._gains_for(count)
+        _reach, _spread, axes = _kernel_extras((count, n), circulation, None)
+        return TubeEvaluation(
+            *kernel(
+                np.asarray(center, dtype=float),
+                np.ascontiguousarray(belief.mean, dtype=float),
+                np.ascontiguousarray(belief.covariance, dtype=float).reshape(count, n, n),
+                np.asarray(belief.radius, dtype=float),
+                np.asarray(belief.epsilon, dtype=float),
+                np.asarray(belief.p_d, dtype=float),
+                k2,
+                k3,
                 axes,
                 constants[mode],
             )
@@ -332,16 +372,37 @@ class TubeLaw:
     ) -> TubeEvaluation:
         """The numpy reference of :meth:`evaluate` (any n)."""
         safety_radius = belief.radius + self.r_min
-        if inflation is None:
-            q = avoid_probability(center, belief.mean, belief.sigma, safety_radius)
-        else:
-            q = period_avoid_probability(
-                center, belief.mean, belief.sigma, safety_radius, *inflation
-            )
         prune_above = {"pruned": self.prune_above, "exact": None, "rate": -np.inf}[mode]
-        d_hat = quantile_distance(
-            center, belief.mean, belief.sigma, belief.radius, belief.epsilon, prune_above
-        )
+        offset = center - belief.mean
+        distance = np.linalg.norm(offset, axis=1)
+        if belief.covariance is not None:  # q_j, d̂_j and ∇̂q_j with Σ_j (pruned alike)
+            if inflation is not None:
+                raise ValueError(
+                    "covariance: the fixed-rate tube's period bounds are for isotropic "
+                    "beliefs (sigma) only; run a belief with full covariances in continuous time"
+                )
+            q, d_hat, unit = obstacle_terms(
+                center,
+                belief.mean,
+                np.asarray(belief.covariance).reshape(belief.count, belief.dimension, -1),
+                belief.radius,
+                belief.epsilon,
+                belief.p_d,
+                self.r_min,
+                prune_above,
+            )
+        else:  # q_j depends on ‖c − μ_j‖ only: ∇̂q_j = (c − μ_j)/‖c − μ_j‖
+            if inflation is None:
+                q = avoid_probability(center, belief.mean, belief.sigma, safety_radius)
+            else:
+                q = period_avoid_probability(
+                    center, belief.mean, belief.sigma, safety_radius, *inflation
+                )
+            d_hat = quantile_distance(
+                center, belief.mean, belief.sigma, belief.radius, belief.epsilon, prune_above
+            )
+            positive = distance[:, None] > 0.0
+            unit = np.where(positive, offset / np.where(positive, distance[:, None], 1.0), 0.0)
         active = q <= belief.p_d
         violated = q <= belief.epsilon
         theta = np.zeros_like(q)
@@ -354,7 +415,8 @@ class TubeLaw:
         law_terms = active & ~violated
         if np.any(law_terms):
             gap = q[law_terms] - belief.epsilon[law_terms]
-            m = (center - belief.mean[law_terms]) / gap[:, None]
+            # m_j = ‖c − μ_j‖·∇̂q_j/(q_j − ε_j): the paper's (c − μ_j)/(q_j − ε_j) for Σ = σ²I
+            m = (distance[law_terms] / gap)[:, None] * unit[law_terms]
             axes = None if circulation is None else np.asarray(circulation)[law_terms]
             v = null_space_direction(m, goal_direction, axes)
             k2 = np.broadcast_to(self.k2, q.shape)[law_terms]
@@ -371,7 +433,7 @@ class TubeLaw:
         share = float(np.max(layer, initial=0.0))
         if share > 0.0:
             escape = self._recovery_velocity(
-                center, belief.mean[layer > 0.0], goal_direction, layer[layer > 0.0]
+                unit[layer > 0.0], goal_direction, layer[layer > 0.0]
             )
             rate = escape if share == 1.0 else (1.0 - share) * rate + share * escape
         return TubeEvaluation(
@@ -383,17 +445,10 @@ class TubeLaw:
         )
 
     def _recovery_velocity(
-        self,
-        center: np.ndarray,
-        means: np.ndarray,
-        goal_direction: np.ndarray,
-        weights: np.ndarray,
+        self, unit: np.ndarray, goal_direction: np.ndarray, weights: np.ndarray
     ) -> np.ndarray:
-        """v_c along Σ w_j (c − μ_j)/‖c − μ_j‖ over the obstacles in the boundary layer
-        (the goal direction, else e_0, when those cancel)."""
-        offset = center - means
-        distance = np.linalg.norm(offset, axis=1, keepdims=True)
-        unit = np.where(distance > 0.0, offset / np.where(distance > 0.0, distance, 1.0), 0.0)
+        """v_c along Σ w_j ∇̂q_j over the obstacles in the boundary layer (∇̂q_j =
+        (c − μ_j)/‖c − μ_j‖ for Σ_j = σ_j²I), the goal direction, else e_0, when those cancel."""
         escape = np.sum(weights[:, None] * unit, axis=0)
         for direction in (escape, goal_direction):
             size = float(np.linalg.norm(direction))
@@ -403,7 +458,7 @@ class TubeLaw:
                 # IEEE arithmetic gives; that NaN is the intended answer, not a warning.
                 with np.errstate(invalid="ignore"):
                     return self.max_center_speed * direction / size
-        rate = np.zeros_like(center, dtype=float)
+        rate = np.zeros_like(goal_direction, dtype=float)
         rate[0] = self.max_center_speed
         return rate
 
