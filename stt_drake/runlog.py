@@ -110,7 +110,8 @@ class RunLog(Mapping[str, np.ndarray]):
             loggers: the diagram's ``VectorLogSink`` per logged signal: ``output``,
                 ``tube`` ([c, r]), ``belief``, ``diagnostics`` ([q, d̂, θ] per obstacle),
                 ``recovery``, ``control``, ``margins``, ``output_avoid_probability``,
-                ``tube_avoid_probability`` and the names in `extra_logs`.
+                ``tube_avoid_probability``, ``obstacle_covariance`` (anisotropic runs only)
+                and the names in `extra_logs`.
             root_context: the simulator's (root) context the logs live in.
             scenario: the simulated scenario (name, task, tube bounds, obstacle models).
             extra_logs: plant-specific signals, logged as they are.
@@ -151,6 +152,8 @@ class RunLog(Mapping[str, np.ndarray]):
             "mean_speed_bound": mean_speed_bound,
             "sigma_rate_bound": sigma_rate_bound,
         }
+        if "obstacle_covariance" in data:  # full covariances Σ_j, row-major, obstacle-major
+            arrays["obstacle_covariance"] = data["obstacle_covariance"].copy()
         for name in extra_logs:
             arrays[name] = data[name].copy()
         arrays.update({name: np.asarray(value) for name, value in (constants or {}).items()})
@@ -321,14 +324,24 @@ class RunLog(Mapping[str, np.ndarray]):
         """(T, m) separation levels p_d_j of Assumption 3."""
         return self._per_obstacle(self._belief.p_d)
 
+    @cached_property
+    def covariance(self) -> np.ndarray | None:
+        """(T, m, n, n) full covariances Σ_j (m²) of an anisotropic run, else None."""
+        if "obstacle_covariance" not in self:
+            return None
+        n = self.dimension
+        return self.rows("obstacle_covariance").reshape(self.samples, self.count, n, n)
+
     def belief_at(self, index: int) -> ObstacleBelief:
         """The belief of all m obstacles at sample `index` (views)."""
+        covariance = self.covariance
         return ObstacleBelief(
             mean=self.mean[index],
             sigma=self.sigma[index],
             radius=self.obstacle_radius[index],
             epsilon=self.epsilon[index],
             p_d=self.p_d[index],
+            covariance=None if covariance is None else covariance[index],
         )
 
     @cached_property

@@ -4,6 +4,8 @@ exact probability, the pruning bounds, the level-set escape, and compiled agains
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -251,3 +253,74 @@ def test_fixed_rate_inflation_is_refused_for_covariances():
     law = make_law(2)
     with pytest.raises(ValueError, match="covariance: the fixed-rate"):
         law.evaluate(np.zeros(2), belief, inflation=(np.zeros(3), np.zeros(3)))
+
+
+# --------------------------------------------------------------------------------------
+# The Drake systems with the `obstacle_covariance` port
+# --------------------------------------------------------------------------------------
+def test_tube_and_monitor_systems_read_the_covariance_port():
+    """The tube's ċ and diagnostics are the law's with Σ (not the isotropic sigma it also
+    receives), and the monitor's margins are the exact anisotropic ones."""
+    from stt_drake.core.invariants import evaluate_invariants
+    from stt_drake.systems.monitor import InvariantMonitor
+    from stt_drake.systems.tube import SpatiotemporalTube
+
+    rng = np.random.default_rng(SEED + 50)
+    belief = field(rng, 2, 3, covariance=True, ratio=100.0)
+    law = make_law(2)
+    center = np.array([2.0, 2.0])
+    # a centre where every q_j > ε_j and some obstacle acts (θ_j > 0): the law's terms matter
+    while True:
+        evaluation = law.evaluate(center, belief)
+        if np.all(evaluation.avoid_probability > belief.epsilon) and np.any(evaluation.theta > 0):
+            break
+        center = belief.mean[0] + rng.normal(size=2) * 0.6
+    tube = SpatiotemporalTube(law, center, obstacle_count=3, anisotropic=True)
+    context = tube.CreateDefaultContext()
+    tube.GetInputPort("obstacle_belief").FixValue(context, belief.to_vector())
+    tube.GetInputPort("obstacle_covariance").FixValue(context, belief.covariance.ravel())
+    expected = law.evaluate(center, belief)
+    isotropic = law.evaluate(center, replace(belief, covariance=None))
+    derivatives = tube.AllocateTimeDerivatives()
+    tube.CalcTimeDerivatives(context, derivatives)
+    np.testing.assert_allclose(derivatives.CopyToVector(), expected.center_rate, rtol=1e-12)
+    np.testing.assert_allclose(
+        tube.GetOutputPort("diagnostics").Eval(context)[:3], expected.avoid_probability, rtol=1e-12
+    )
+    assert np.max(np.abs(expected.center_rate - isotropic.center_rate)) > 1e-3
+
+    monitor = InvariantMonitor(2, 3, law.r_min, anisotropic=True)
+    monitor_context = monitor.CreateDefaultContext()
+    tube_value = np.append(center, 0.2)
+    output = center + np.array([0.05, -0.02])
+    monitor.GetInputPort("tube").FixValue(monitor_context, tube_value)
+    monitor.GetInputPort("obstacle_belief").FixValue(monitor_context, belief.to_vector())
+    monitor.GetInputPort("obstacle_covariance").FixValue(monitor_context, belief.covariance.ravel())
+    monitor.GetInputPort("output").FixValue(monitor_context, output)
+    monitor.GetInputPort("recovery").FixValue(monitor_context, np.zeros(3))
+    margins = monitor.GetOutputPort("margins").Eval(monitor_context)
+    # the center margin from the public probability function, one obstacle at a time
+    center_q = [
+        anisotropic.avoid_probability(
+            center, belief.mean[j], belief.covariance[j], belief.radius[j] + law.r_min
+        )
+        for j in range(3)
+    ]
+    np.testing.assert_allclose(margins[1], np.min(np.array(center_q) - belief.epsilon), atol=1e-13)
+    reference = evaluate_invariants(output, center, 0.2, belief, law.r_min)
+    np.testing.assert_allclose(margins, reference.margins, atol=1e-13)
+
+
+def test_fixed_rate_tube_with_covariances_is_refused():
+    from stt_drake.core.fixed_rate import BeliefRateBounds
+    from stt_drake.systems.tube import SpatiotemporalTube
+
+    with pytest.raises(ValueError, match="anisotropic: the fixed-rate tube"):
+        SpatiotemporalTube(
+            make_law(2),
+            np.zeros(2),
+            2,
+            update_period=0.01,
+            rate_bounds=BeliefRateBounds.still(2),
+            anisotropic=True,
+        )

@@ -30,6 +30,8 @@ EXPECTED_DIAGRAMS = [
     "omni_hardware_case2.yaml",
     "omni_hardware_case3.yaml",
     "omni_cluttered_50.yaml",
+    "omni_anisotropic.yaml",
+    "uav_anisotropic.yaml",
 ]
 
 

@@ -365,6 +365,8 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> SttDiag
         "output_avoid_probability": monitor.GetOutputPort("output_avoid_probability"),
         "tube_avoid_probability": monitor.GetOutputPort("tube_avoid_probability"),
     }
+    if stt.covariance is not None:  # full covariances: the run log keeps Σ_j(t)
+        logged["obstacle_covariance"] = stt.covariance
     extra = dict(plant.logged)
     if plant.sequencer is not None:
         builder.Connect(stt.tube, plant.sequencer.GetInputPort("tube"))

@@ -48,7 +48,7 @@ from stt_drake.config import (
     Scenario,
     ScenarioError,
 )
-from stt_drake.core.belief import obstacle_rate_bounds
+from stt_drake.core.belief import obstacle_rate_bounds, obstacle_sigma_bounds
 from stt_drake.core.control import ERROR_SATURATION, transformed_error
 from stt_drake.core.fixed_rate import BeliefRateBounds
 from stt_drake.core.probability import PRUNE_HEADROOM_NU, period_avoid_probability
@@ -95,16 +95,11 @@ def level_set_speeds(scenario: Scenario) -> np.ndarray:
     for j, obstacle in enumerate(scenario.obstacles):
         if sigma_rate[j] == 0.0:
             continue
-        sigmas = _sigma_values(obstacle)
+        low, high = obstacle_sigma_bounds(obstacle)
         z = math.sqrt(stats.chi2.ppf(obstacle.epsilon, n))
-        scale = 2.0 * (reach + obstacle.radius) + max(sigmas) * z
-        speeds[j] += sigma_rate[j] * scale / min(sigmas)
+        scale = 2.0 * (reach + obstacle.radius) + high * z
+        speeds[j] += sigma_rate[j] * scale / low
     return speeds
-
-
-def _sigma_values(obstacle: object) -> list[float]:
-    schedule = obstacle.sigma_schedule
-    return [obstacle.sigma] if schedule is None else list(schedule.values)
 
 
 def center_speed(scenario: Scenario) -> float:
@@ -141,7 +136,7 @@ def admissible_period(scenario: Scenario) -> tuple[float, str]:
                     ),
                 )
         if sigma_rate[j] > 0.0:
-            limit = min(_sigma_values(obstacle)) / (4.0 * sigma_rate[j])
+            limit = obstacle_sigma_bounds(obstacle)[0] / (4.0 * sigma_rate[j])
             if limit < best:
                 best, reason = (
                     limit,

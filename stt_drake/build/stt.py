@@ -31,13 +31,15 @@ class SttHandles:
     `belief_source` is None when the belief came in as a port. `plant_state` (the
     controller's input) and `control` (its output) connect to the plant; `output` is the
     monitor's input for the plant output y; `tube` is the tube's [c, r] output and `belief`
-    the belief port the loop reads."""
+    the belief port the loop reads; `covariance` the `obstacle_covariance` port it reads
+    (None: isotropic beliefs)."""
 
     belief_source: ObstacleBeliefSource | None
     tube_system: SpatiotemporalTube
     controller: LeafSystem
     monitor: InvariantMonitor
     belief: OutputPort
+    covariance: OutputPort | None
     tube: OutputPort
     plant_state: InputPort
     control: OutputPort
@@ -52,6 +54,7 @@ def AddStt(  # noqa: N802 (Drake's naming of builder functions)
     *,
     obstacles: Sequence[ObstacleModel] | None = None,
     belief: OutputPort | None = None,
+    covariance: OutputPort | None = None,
     obstacle_count: int | None = None,
     update_period: float | None = None,
     rate_bounds: BeliefRateBounds | None = None,
@@ -72,6 +75,9 @@ def AddStt(  # noqa: N802 (Drake's naming of builder functions)
             added. Give either this or `belief`.
         belief: an `obstacle_belief` output port already in `builder` (a tracker), with
             `obstacle_count` obstacles.
+        covariance: with `belief`, an `obstacle_covariance` output port (each Σ_j, m²,
+            row-major) for full covariances; None: isotropic. With `obstacles`, the
+            belief source's own port is used when some obstacle has a full covariance.
         update_period: None for the continuous-time tube, else the fixed update period h (s);
             then `rate_bounds` is required (:class:`SpatiotemporalTube`).
         target_input: the tube reads η from an input port `target` (a task sequencer).
@@ -93,9 +99,11 @@ def AddStt(  # noqa: N802 (Drake's naming of builder functions)
             f"{prefix}obstacle_belief_source", ObstacleBeliefSource(obstacles, n)
         )
         belief = source.GetOutputPort("obstacle_belief")
+        covariance = source.GetOutputPort("obstacle_covariance") if source.anisotropic else None
         obstacle_count = len(obstacles)
     elif obstacle_count is None:
         raise ValueError("AddStt: a `belief` port needs its `obstacle_count`")
+    anisotropic = covariance is not None
     tube = builder.AddNamedSystem(
         f"{prefix}spatiotemporal_tube",
         SpatiotemporalTube(
@@ -105,12 +113,14 @@ def AddStt(  # noqa: N802 (Drake's naming of builder functions)
             update_period=update_period,
             target_input=target_input,
             rate_bounds=rate_bounds,
+            anisotropic=anisotropic,
         ),
     )
     if isinstance(controller, FunnelController):
         controller = builder.AddNamedSystem(f"{prefix}stt_controller", STTController(controller, n))
     monitor = builder.AddNamedSystem(
-        f"{prefix}invariant_monitor", InvariantMonitor(n, obstacle_count, law.r_min)
+        f"{prefix}invariant_monitor",
+        InvariantMonitor(n, obstacle_count, law.r_min, anisotropic=anisotropic),
     )
     tube_output = tube.GetOutputPort("tube")
     builder.Connect(belief, tube.GetInputPort("obstacle_belief"))
@@ -118,12 +128,16 @@ def AddStt(  # noqa: N802 (Drake's naming of builder functions)
     builder.Connect(tube_output, monitor.GetInputPort("tube"))
     builder.Connect(belief, monitor.GetInputPort("obstacle_belief"))
     builder.Connect(tube.GetOutputPort("recovery"), monitor.GetInputPort("recovery"))
+    if covariance is not None:
+        builder.Connect(covariance, tube.GetInputPort("obstacle_covariance"))
+        builder.Connect(covariance, monitor.GetInputPort("obstacle_covariance"))
     return SttHandles(
         belief_source=source,
         tube_system=tube,
         controller=controller,
         monitor=monitor,
         belief=belief,
+        covariance=covariance,
         tube=tube_output,
         plant_state=controller.GetInputPort("plant_state"),
         control=controller.GetOutputPort("control"),

@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from stt_drake.config.schema import AssumptionError, Scenario
-from stt_drake.core.belief import obstacle_sigma
+from stt_drake.core import anisotropic
+from stt_drake.core.belief import has_full_covariance, obstacle_covariance, obstacle_sigma
 from stt_drake.core.motion import MotionTable
 from stt_drake.core.probability import avoid_probability
 
@@ -40,20 +41,42 @@ def target_separation(
     scenario: Scenario, checkpoints: int = SEPARATION_CHECKPOINTS
 ) -> TargetSeparation:
     """q_j(η, t) at `checkpoints` times evenly over [0, duration], η the final target (the
-    means of all obstacles stacked once, :class:`stt_drake.core.motion.MotionTable`)."""
+    means of all obstacles stacked once, :class:`stt_drake.core.motion.MotionTable`).
+
+    An obstacle with a full covariance Σ_j(t) gets the exact anisotropic probability
+    (:func:`stt_drake.core.anisotropic.avoid_probability`): P(‖η − O_j‖ ≥ R) with
+    O_j ~ N(μ_j, Σ_j) is P(‖(η − μ_j) − Z‖ ≥ R) with Z ~ N(0, Σ_j), so a constant Σ_j takes
+    one call for all times."""
     obstacles = scenario.obstacles
+    n = scenario.dimension
     times = np.linspace(0.0, scenario.duration, max(int(checkpoints), 2))
     target = np.asarray(scenario.target, dtype=float)
-    table = MotionTable([o.motion for o in obstacles], scenario.dimension)
+    table = MotionTable([o.motion for o in obstacles], n)
     radius = np.array([o.radius for o in obstacles], dtype=float) + scenario.tube.r_min
     sigma = np.array([o.sigma for o in obstacles], dtype=float)
-    scheduled = [j for j, o in enumerate(obstacles) if o.sigma_schedule is not None]
+    full = [j for j, o in enumerate(obstacles) if has_full_covariance(o)]
+    scheduled = [
+        j for j, o in enumerate(obstacles) if o.sigma_schedule is not None and j not in full
+    ]
     q = np.empty((times.size, len(obstacles)))
+    means = np.empty((times.size, len(obstacles), n))
     for k, time in enumerate(times):
         for j in scheduled:
             sigma[j] = obstacle_sigma(obstacles[j], float(time))
         if obstacles:
-            q[k] = avoid_probability(target, table.positions(float(time)), sigma, radius)
+            means[k] = table.positions(float(time))
+            q[k] = avoid_probability(target, means[k], sigma, radius)
+    for j in full:
+        offsets = target - means[:, j]
+        if obstacles[j].covariance_schedule is None:
+            covariance = obstacle_covariance(obstacles[j], 0.0, n)
+            q[:, j] = anisotropic.avoid_probability(offsets, np.zeros(n), covariance, radius[j])
+        else:
+            for k, time in enumerate(times):
+                covariance = obstacle_covariance(obstacles[j], float(time), n)
+                q[k, j] = anisotropic.avoid_probability(
+                    offsets[k], np.zeros(n), covariance, radius[j]
+                )
     p_d = np.array([o.p_d for o in obstacles], dtype=float)
     return TargetSeparation(times, q, p_d)
 

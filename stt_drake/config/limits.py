@@ -24,6 +24,7 @@ from pydrake.systems.analysis import GetIntegrationSchemes, SimulatorConfig
 
 from stt_drake.config.schema import FrankaArm, Scenario, ScenarioError
 from stt_drake.config.source import short_repr
+from stt_drake.core.belief import has_full_covariance
 
 #: Largest magnitude of any number in a scenario (metres, seconds, gains, ...): a million
 #: metres is far beyond any arena; larger values are typos or attacks (1e308 overflows).
@@ -53,7 +54,8 @@ MEMORY_BUDGET_ENV = "STT_DRAKE_MEMORY_BUDGET_GB"
 FIXED_VALUES_PER_SAMPLE = 128
 
 #: Logged values per obstacle and sample beyond the n of its mean: σ, radius, ε, p_d
-#: (belief), q_j, d̂_j, θ_j (diagnostics), the recovery flag and two avoidance probabilities.
+#: (belief), q_j, d̂_j, θ_j (diagnostics), the recovery flag and two avoidance probabilities
+#: (and the n² entries of Σ_j in a run with full covariances).
 OBSTACLE_VALUES_PER_SAMPLE = 10
 
 #: How many times the logged data is held at once: Drake's loggers grow their storage by
@@ -149,12 +151,23 @@ def logged_samples(scenario: Scenario) -> int:
     return int(scenario.duration / scenario.log_period) + 1
 
 
-def estimate_run_bytes(samples: int, obstacles: int, dimension: int) -> int:
+def estimate_run_bytes(
+    samples: int, obstacles: int, dimension: int, covariance: bool = False
+) -> int:
     """Bytes a run needs for its logs and obstacles (an estimate, see the constants):
     LOG_COPIES·8·samples·(obstacles·(n + OBSTACLE_VALUES_PER_SAMPLE) +
-    FIXED_VALUES_PER_SAMPLE) + obstacles·OBSTACLE_BYTES."""
-    values = obstacles * (dimension + OBSTACLE_VALUES_PER_SAMPLE) + FIXED_VALUES_PER_SAMPLE
+    FIXED_VALUES_PER_SAMPLE) + obstacles·OBSTACLE_BYTES; with `covariance` (some obstacle
+    has a full covariance: every Σ_j is logged) n² more values per obstacle and sample."""
+    per_obstacle = obstacle_values_per_sample(dimension, covariance)
+    values = obstacles * per_obstacle + FIXED_VALUES_PER_SAMPLE
     return LOG_COPIES * 8 * samples * values + obstacles * OBSTACLE_BYTES
+
+
+def obstacle_values_per_sample(dimension: int, covariance: bool = False) -> int:
+    """Logged values per obstacle and sample: n + :data:`OBSTACLE_VALUES_PER_SAMPLE`, and
+    the n² entries of Σ_j when the run logs full covariances."""
+    extra = dimension * dimension if covariance else 0
+    return dimension + OBSTACLE_VALUES_PER_SAMPLE + extra
 
 
 def memory_budget_bytes(scenario: Scenario) -> tuple[float, str]:
@@ -197,10 +210,11 @@ def check_memory(scenario: Scenario, drawn: bool = False) -> None:
     listed = len(scenario.obstacles)
     obstacles = listed + field_count
     samples = logged_samples(scenario)
-    needed = estimate_run_bytes(samples, obstacles, scenario.dimension)
+    covariance = any(has_full_covariance(o) for o in scenario.obstacles)
+    needed = estimate_run_bytes(samples, obstacles, scenario.dimension, covariance)
     if needed <= budget:
         return
-    per_obstacle = scenario.dimension + OBSTACLE_VALUES_PER_SAMPLE
+    per_obstacle = obstacle_values_per_sample(scenario.dimension, covariance)
     if obstacles * per_obstacle <= FIXED_VALUES_PER_SAMPLE:
         path, value = "scenario.log_period", scenario.log_period
     elif field_count >= listed:
@@ -210,7 +224,8 @@ def check_memory(scenario: Scenario, drawn: bool = False) -> None:
     raise ScenarioError(
         f"{path}: the run would need about {needed / _GB:.3g} GB ({samples} logged samples "
         f"of {obstacles} obstacles in {scenario.dimension}D: duration/log_period + 1 samples "
-        f"× (n + {OBSTACLE_VALUES_PER_SAMPLE} values per obstacle + {FIXED_VALUES_PER_SAMPLE})"
+        f"× (n + {OBSTACLE_VALUES_PER_SAMPLE}{' + n²' if covariance else ''} values per "
+        f"obstacle + {FIXED_VALUES_PER_SAMPLE})"
         f" × 8 B × {LOG_COPIES} copies), above the memory budget of {budget / _GB:.3g} GB "
         f"({source}); raise log_period, shorten duration or use fewer obstacles, or raise "
         f"the budget with max_memory_gb in the scenario or {MEMORY_BUDGET_ENV} "

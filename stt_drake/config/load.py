@@ -16,7 +16,13 @@ from stt_drake.config.limits import check_limits, check_seed
 from stt_drake.config.random_field import expand_random_obstacles
 from stt_drake.config.schema import Scenario, ScenarioError
 from stt_drake.config.source import compose_checked, read_scenario_file, short_repr
-from stt_drake.config.validate import name_from_stem, validate, validate_dimension
+from stt_drake.config.validate import (
+    UNCERTAINTY_FIELDS,
+    check_one_uncertainty,
+    name_from_stem,
+    validate,
+    validate_dimension,
+)
 
 
 class _TaggedLoader(yaml.SafeLoader):
@@ -159,7 +165,8 @@ def read_scenario_text(
 
 #: Fields an obstacle must give, and what each one is (no invented uncertainty or risk).
 OBSTACLE_REQUIRED = {
-    "sigma": "the standard deviation of the obstacle centre, m; or give sigma_schedule",
+    "sigma": "the standard deviation of the obstacle centre, m; or give sigma_schedule, "
+    "covariance, axes_sigma or covariance_schedule",
     "epsilon": "the probability ε ∈ (0, 1] with which the tube must avoid the obstacle",
     "p_d": "the probability p_d ∈ (ε, 1] of Assumption 3, that the obstacle eventually "
     "leaves the tube alone",
@@ -181,15 +188,20 @@ def _require_fields(data: dict, required: dict[str, str], path: str) -> None:
 
 def _check_required(raw: dict) -> None:
     """The safety fields Drake's loader would fill with a default, found missing in the
-    raw mapping: every obstacle's sigma (unless it has a sigma_schedule), epsilon and p_d;
-    a drawing random field's sigma_range, epsilon_range and p_d."""
+    raw mapping: every obstacle's sigma (unless it gives another form of the uncertainty,
+    of which it may give one only:
+    :func:`stt_drake.config.validate.check_one_uncertainty`), epsilon and p_d; a
+    drawing random field's sigma_range, epsilon_range and p_d."""
     obstacles = raw.get("obstacles")
     for i, item in enumerate(obstacles if isinstance(obstacles, list) else []):
         if isinstance(item, dict):
+            path = f"scenario.obstacles[{i}]"
+            given = [name for name in UNCERTAINTY_FIELDS if item.get(name) is not None]
+            check_one_uncertainty(given, path)
             needed = dict(OBSTACLE_REQUIRED)
-            if item.get("sigma_schedule") is not None:
+            if any(name != "sigma" for name in given):
                 del needed["sigma"]
-            _require_fields(item, needed, f"scenario.obstacles[{i}]")
+            _require_fields(item, needed, path)
     spec = raw.get("random_obstacles")
     if isinstance(spec, dict) and (spec.get("count") not in (None, 0) or spec.get("count_range")):
         _require_fields(spec, RANDOM_REQUIRED, "scenario.random_obstacles")

@@ -13,7 +13,7 @@ import numpy as np
 from pydrake.systems.analysis import SimulatorConfig
 
 from stt_drake.core.belief import ObstacleBelief, obstacle_belief
-from stt_drake.core.motion import ConstantVelocity, Motion, SigmaSchedule
+from stt_drake.core.motion import ConstantVelocity, CovarianceSchedule, Motion, SigmaSchedule
 from stt_drake.core.tube import default_nu
 
 
@@ -45,11 +45,23 @@ class AssumptionError(ScenarioError):
 class Obstacle:
     """One uncertain obstacle (Definition 2.1): a ball of `radius` around a Gaussian centre.
 
-    `sigma` is the standard deviation of the centre per axis in metres (σ, not σ²);
-    `sigma_schedule`, when given, replaces it with a piecewise-linear σ(t).
+    The centre's uncertainty is given in one of these forms:
 
-    A scenario file must give `sigma` (or `sigma_schedule`), `epsilon` and `p_d`: a safety
-    tool does not invent an uncertainty or a risk level (the loader refuses a file without
+    * `sigma`: the standard deviation of the centre per axis in metres (σ, not σ²),
+      Σ = σ²I; `sigma_schedule`, when given, replaces it with a piecewise-linear σ(t);
+    * `covariance`: a full covariance Σ (n×n, m², symmetric positive definite), a list of
+      n rows;
+    * `axes_sigma`: n standard deviations (m) along the principal axes, turned by
+      `rotation` (rad; 2D: ``[angle]``, 3D: ``[roll, pitch, yaw]`` with Drake's RollPitchYaw
+      R = Rz(yaw)·Ry(pitch)·Rx(roll); none: no rotation): Σ = R diag(axes_sigma²) Rᵀ;
+    * `covariance_schedule`: a piecewise-linear Σ(t) (:class:`CovarianceSchedule`).
+
+    With a full covariance the tube law uses Σ exactly and the belief's sigma is
+    √λ_max(Σ) (:func:`stt_drake.core.belief.obstacle_belief`).
+
+    A scenario file must give one of these forms (sigma may come with a sigma_schedule,
+    which replaces it; nothing else may be combined), `epsilon` and `p_d`: a safety tool
+    does not invent an uncertainty or a risk level (the loader refuses a file without
     them, :mod:`stt_drake.config.load`). The defaults here only serve Drake's loader and
     code that builds obstacles itself.
     """
@@ -58,6 +70,10 @@ class Obstacle:
     radius: float = 0.15
     sigma: float = 0.1
     sigma_schedule: SigmaSchedule | None = None
+    covariance: list[list[float]] | None = None
+    axes_sigma: list[float] | None = None
+    rotation: list[float] | None = None
+    covariance_schedule: CovarianceSchedule | None = None
     epsilon: float = 0.9
     p_d: float = 0.9999
 

@@ -1,6 +1,7 @@
 """The rules of the paper and of the file format that a scenario can be checked against
 without building anything: the limits of :mod:`stt_drake.config.limits` (finite, sane
-numbers, seeds, the simulator, memory), the name, shapes, signs, ranges, ν, the plant's
+numbers, seeds, the simulator, memory), the name, shapes, signs, ranges, the obstacles'
+uncertainty (σ, σ schedules, full covariances Σ_j: :func:`require_covariance`), ν, the plant's
 fields, the controller's gains and funnels, the initial avoidance condition q_j(s, 0) > ε_j
 (J(0) > 0 in the proof of Theorem 3.2 (ii)) and Assumption 3 at the target
 (:mod:`stt_drake.config.assumptions`). Every broken rule raises :class:`ScenarioError`
@@ -28,6 +29,8 @@ from stt_drake.config.schema import (
     ScenarioError,
 )
 from stt_drake.config.source import short_repr
+from stt_drake.core import anisotropic
+from stt_drake.core.belief import axes_covariance, has_full_covariance
 from stt_drake.core.motion import ConstantVelocity, Motion, Oscillation, Waypoints
 from stt_drake.core.probability import avoid_probability
 from stt_drake.core.tube import minimum_nu
@@ -47,6 +50,10 @@ SIGMA_MIN = 1e-3
 
 #: Fastest fixed-rate tube update (Hz): a real-time rate; faster is continuous time (0).
 MAX_UPDATE_RATE_HZ = 1e4
+
+#: The forms of an obstacle centre's uncertainty (:class:`stt_drake.config.schema.Obstacle`):
+#: an obstacle gives one of them; sigma may come with sigma_schedule, which replaces it.
+UNCERTAINTY_FIELDS = ("sigma", "sigma_schedule", "covariance", "axes_sigma", "covariance_schedule")
 
 #: What a scenario name may hold: it names the results folder, results/<name>/.
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_.-]{1,100}")
@@ -87,6 +94,67 @@ def require_sigma(value: float, path: str) -> None:
         "law's level sets are too thin to integrate and its probabilities too costly to "
         "evaluate: treat such an obstacle as certain with sigma 0.001)",
         value,
+    )
+
+
+def check_one_uncertainty(given: list[str], path: str) -> None:
+    """Of the uncertainty forms `given` (names of :data:`UNCERTAINTY_FIELDS`, in that order)
+    at most one, sigma with sigma_schedule counting as one: ScenarioError naming both
+    fields of the first pair that breaks it."""
+    for k, second in enumerate(given):
+        for first in given[:k]:
+            if {first, second} != {"sigma", "sigma_schedule"}:
+                raise ScenarioError(
+                    f"{path}.{second}: {first} and {second} are both given: give only one of "
+                    f"{', '.join(UNCERTAINTY_FIELDS)} (one description of the centre's "
+                    "uncertainty; sigma may come with sigma_schedule, which replaces it)"
+                )
+
+
+def require_covariance(matrix: list[list[float]], n: int, path: str) -> None:
+    """A covariance Σ (m²) the anisotropic law can use: n×n, finite, symmetric (within
+    :data:`stt_drake.core.anisotropic.SYMMETRY_RTOL` relative), positive definite, with
+    λ_max/λ_min ≤ :data:`stt_drake.core.anisotropic.MAX_CONDITION`, and its smallest
+    standard deviation √λ_min ≥ :data:`SIGMA_MIN` (the rule of :func:`require_sigma`)."""
+    require(
+        len(matrix) == n and all(hasattr(row, "__len__") and len(row) == n for row in matrix),
+        path,
+        f"must be a {n}x{n} matrix ({n} rows of {n} entries, m²) in this {n}D scenario",
+        matrix,
+    )
+    values = np.asarray(matrix, dtype=float)
+    require(bool(np.all(np.isfinite(values))), path, "must be finite", matrix)
+    asymmetry = float(np.max(np.abs(values - values.T)))
+    allowed = anisotropic.SYMMETRY_RTOL * float(np.max(np.abs(values)))
+    require(
+        asymmetry <= allowed,
+        path,
+        f"must be symmetric: max |Σ − Σᵀ| = {asymmetry:.3g} exceeds "
+        f"{anisotropic.SYMMETRY_RTOL:g} × max |Σ|",
+        matrix,
+    )
+    eigenvalues = np.linalg.eigvalsh(0.5 * (values + values.T))
+    smallest, largest = float(eigenvalues[0]), float(eigenvalues[-1])
+    require(
+        smallest > 0.0,
+        path,
+        f"must be symmetric positive definite: smallest eigenvalue {smallest:.3g}",
+        matrix,
+    )
+    require(
+        largest <= anisotropic.MAX_CONDITION * smallest,
+        path,
+        f"must be well conditioned: eigenvalue ratio λ_max/λ_min = {largest / smallest:.3g} "
+        f"exceeds {anisotropic.MAX_CONDITION:g} (numerically singular)",
+        matrix,
+    )
+    require(
+        math.sqrt(smallest) >= SIGMA_MIN,
+        path,
+        f"must have every standard deviation ≥ {SIGMA_MIN:g} m: the smallest, √λ_min, is "
+        f"{math.sqrt(smallest):.3g} m (the rule of sigma: below 1 mm the tube law's level "
+        "sets are too thin to integrate)",
+        matrix,
     )
 
 
@@ -167,6 +235,7 @@ def _validate_obstacle(obstacle: Obstacle, n: int, path: str) -> None:
         )
         for k, value in enumerate(schedule.values):
             require_sigma(value, f"{path}.sigma_schedule.values[{k}]")
+    _validate_full_covariance(obstacle, n, path)
     require(
         0.0 < obstacle.epsilon <= 1.0, f"{path}.epsilon", "must lie in (0, 1]", obstacle.epsilon
     )
@@ -176,6 +245,60 @@ def _validate_obstacle(obstacle: Obstacle, n: int, path: str) -> None:
         f"must lie in (epsilon, 1] = ({obstacle.epsilon}, 1]",
         obstacle.p_d,
     )
+
+
+def _validate_full_covariance(obstacle: Obstacle, n: int, path: str) -> None:
+    """The full-covariance forms of an obstacle: one at most (with no σ schedule), each a
+    valid covariance (:func:`require_covariance`); `rotation` only with `axes_sigma`."""
+    given = [name for name in UNCERTAINTY_FIELDS[1:] if getattr(obstacle, name) is not None]
+    check_one_uncertainty(given, path)
+    if obstacle.covariance is not None:
+        require_covariance(obstacle.covariance, n, f"{path}.covariance")
+    require(
+        obstacle.rotation is None or obstacle.axes_sigma is not None,
+        f"{path}.rotation",
+        "turns the principal axes of axes_sigma: give it with axes_sigma only",
+        obstacle.rotation,
+    )
+    if obstacle.axes_sigma is not None:
+        axes = obstacle.axes_sigma
+        require_vector(axes, n, f"{path}.axes_sigma")
+        for k, value in enumerate(axes):
+            require(
+                value > 0.0,
+                f"{path}.axes_sigma[{k}]",
+                "must be > 0 (a standard deviation in metres)",
+                value,
+            )
+            require_sigma(value, f"{path}.axes_sigma[{k}]")
+        rotation = obstacle.rotation
+        if rotation is not None:
+            angles = "1 entry in 2D: [angle]" if n == 2 else "3 entries in 3D: [roll, pitch, yaw]"
+            require(
+                len(rotation) == (1 if n == 2 else 3),
+                f"{path}.rotation",
+                f"must have {angles} (rad)",
+                rotation,
+            )
+            require(
+                all(math.isfinite(a) for a in rotation),
+                f"{path}.rotation",
+                "must be finite",
+                rotation,
+            )
+        require_covariance(axes_covariance(axes, rotation, n).tolist(), n, f"{path}.axes_sigma")
+    schedule = obstacle.covariance_schedule
+    if schedule is not None:
+        where = f"{path}.covariance_schedule"
+        require(
+            len(schedule.times) >= 1 and len(schedule.times) == len(schedule.covariances),
+            where,
+            "needs as many covariances as times (≥ 1)",
+            schedule,
+        )
+        _require_step_times(schedule.times, f"{where}.times")
+        for k, matrix in enumerate(schedule.covariances):
+            require_covariance(matrix, n, f"{where}.covariances[{k}]")
 
 
 def _validate_controller(config: ControllerConfig, n: int, stages: int) -> None:
@@ -313,6 +436,16 @@ def validate(scenario: Scenario) -> None:
     )
     for i, obstacle in enumerate(scenario.obstacles):
         _validate_obstacle(obstacle, n, f"scenario.obstacles[{i}]")
+    full = [i for i, obstacle in enumerate(scenario.obstacles) if has_full_covariance(obstacle)]
+    if full:
+        require(
+            tube.update_rate_hz == 0.0,
+            "scenario.tube.update_rate_hz",
+            f"must be 0 (continuous time) when an obstacle has a full covariance (obstacle "
+            f"{full[0]}): the fixed-rate tube's period guarantee is derived for isotropic "
+            "beliefs (sigma) only; use 0 (continuous)",
+            tube.update_rate_hz,
+        )
     bound = minimum_nu(len(scenario.obstacles), tube.r_min)
     require(
         tube.nu == 0.0 or tube.nu > bound,
@@ -334,12 +467,23 @@ def _validate_initial_condition(scenario: Scenario) -> None:
     y(0) ∈ S."""
     if scenario.obstacles:
         belief = scenario.belief_at(0.0)
-        q = avoid_probability(
-            np.asarray(scenario.start),
-            belief.mean,
-            belief.sigma,
-            belief.radius + scenario.tube.r_min,
+        q = np.array(
+            avoid_probability(
+                np.asarray(scenario.start),
+                belief.mean,
+                belief.sigma,
+                belief.radius + scenario.tube.r_min,
+            ),
+            dtype=float,
         )
+        for j, obstacle in enumerate(scenario.obstacles):
+            if has_full_covariance(obstacle):  # exact with Σ_j (belief.sigma is √λ_max)
+                q[j] = anisotropic.avoid_probability(
+                    np.asarray(scenario.start, dtype=float),
+                    belief.mean[j],
+                    belief.covariance[j],
+                    belief.radius[j] + scenario.tube.r_min,
+                )
         for j in np.flatnonzero(q <= belief.epsilon):
             raise AssumptionError(
                 f"scenario.start: the initial avoidance condition fails for obstacle {j}: "

@@ -1,6 +1,7 @@
 """The Gaussian obstacle belief of Definition 2.1, and its layout on a Drake vector port.
 
-Obstacle j is the ball B(O_j, r_o_j) with an uncertain centre O_j ~ N(mean_j, sigma_j² I).
+Obstacle j is the ball B(O_j, r_o_j) with an uncertain centre O_j ~ N(mean_j, sigma_j² I), or
+O_j ~ N(mean_j, Σ_j) with a full covariance Σ_j (:func:`obstacle_covariance`).
 Each obstacle also carries its own task numbers: the minimum avoidance probability
 epsilon_j (Definition 2.3) and the separation level p_d_j of Assumption 3.
 
@@ -16,7 +17,7 @@ from typing import Protocol
 
 import numpy as np
 
-from stt_drake.core.motion import Motion, MotionTable, SigmaSchedule
+from stt_drake.core.motion import CovarianceSchedule, Motion, MotionTable, SigmaSchedule
 
 #: Number of scalars after the mean in one obstacle's record: sigma, radius, epsilon, p_d.
 _SCALAR_FIELDS = 4
@@ -95,41 +96,180 @@ class ObstacleBelief:
 
 
 class ObstacleModel(Protocol):
-    """What the belief of one obstacle is made from: the mean's motion model, σ (constant,
-    or a schedule), and the task numbers r_o, ε, p_d (a scenario's ``Obstacle`` is one)."""
+    """What the belief of one obstacle is made from: the mean's motion model, the centre's
+    uncertainty and the task numbers r_o, ε, p_d (a scenario's ``Obstacle`` is one).
+
+    The uncertainty is isotropic, σ (m, constant, or `sigma_schedule`), unless one of the
+    full-covariance forms is given (see :func:`obstacle_covariance`): `covariance` (n×n,
+    m²), `axes_sigma` (n standard deviations, m, along principal axes turned by
+    `rotation`, rad) or `covariance_schedule`.
+    """
 
     motion: Motion
     radius: float
     sigma: float
     sigma_schedule: SigmaSchedule | None
+    covariance: list[list[float]] | None
+    axes_sigma: list[float] | None
+    rotation: list[float] | None
+    covariance_schedule: CovarianceSchedule | None
     epsilon: float
     p_d: float
 
 
+def rotation_matrix(angles: Sequence[float] | None, dimension: int) -> np.ndarray:
+    """R (n, n) from rotation angles (rad): 2D ``[angle]``, R = [[cos, −sin], [sin, cos]];
+    3D ``[roll, pitch, yaw]``, R = Rz(yaw)·Ry(pitch)·Rx(roll) (Drake's RollPitchYaw). None or
+    empty: no rotation (I)."""
+    if angles is None or len(angles) == 0:
+        return np.eye(dimension)
+    a = np.asarray(angles, dtype=float)
+    if dimension == 2 and a.shape == (1,):
+        c, s = np.cos(a[0]), np.sin(a[0])
+        return np.array([[c, -s], [s, c]])
+    if dimension == 3 and a.shape == (3,):
+        (cr, cp, cy), (sr, sp, sy) = np.cos(a), np.sin(a)
+        rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+        ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+        rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+        return rz @ ry @ rx
+    raise ValueError(
+        f"rotation: give 1 angle in 2D or [roll, pitch, yaw] in 3D (rad), got {list(a)} "
+        f"for dimension {dimension}"
+    )
+
+
+def axes_covariance(
+    axes_sigma: Sequence[float], rotation: Sequence[float] | None, dimension: int
+) -> np.ndarray:
+    """Σ = R diag(axes_sigma²) Rᵀ (m²): standard deviations `axes_sigma` (m) along the
+    principal axes, the columns of R = :func:`rotation_matrix` (`rotation` in rad)."""
+    r = rotation_matrix(rotation, dimension)
+    matrix = (r * np.asarray(axes_sigma, dtype=float) ** 2) @ r.T
+    return 0.5 * (matrix + matrix.T)
+
+
+def has_full_covariance(obstacle: ObstacleModel) -> bool:
+    """Whether the obstacle gives a full covariance (`covariance`, `axes_sigma` or
+    `covariance_schedule`) rather than σ. A model without these attributes (written before
+    full covariances) is isotropic."""
+    return any(
+        getattr(obstacle, name, None) is not None
+        for name in ("covariance_schedule", "covariance", "axes_sigma")
+    )
+
+
+def obstacle_covariance(obstacle: ObstacleModel, t: float, dimension: int) -> np.ndarray | None:
+    """Σ_j(t) (n, n), m², symmetrised; None for an isotropic obstacle (σ or a σ schedule).
+
+    One form is used, first given of: `covariance_schedule` (Σ(t)), `covariance`,
+    `axes_sigma` with `rotation` (:func:`axes_covariance`). The scenario loader refuses a
+    file that gives more than one, and checks each matrix
+    (:mod:`stt_drake.config.validate`); a matrix that is not n×n raises ValueError."""
+    matrix = _full_covariance(obstacle, t)
+    if matrix is not None and matrix.shape != (dimension, dimension):
+        raise ValueError(
+            f"covariance: must be {dimension}x{dimension} for dimension {dimension}, "
+            f"got shape {matrix.shape}"
+        )
+    return matrix
+
+
+def _full_covariance(obstacle: ObstacleModel, t: float) -> np.ndarray | None:
+    """:func:`obstacle_covariance` in the matrix's own dimension (axes: len(axes_sigma))."""
+    schedule = getattr(obstacle, "covariance_schedule", None)
+    if schedule is not None:
+        matrix = schedule.covariance(t)
+    elif getattr(obstacle, "covariance", None) is not None:
+        matrix = np.asarray(obstacle.covariance, dtype=float)
+    elif getattr(obstacle, "axes_sigma", None) is not None:
+        axes = obstacle.axes_sigma
+        return axes_covariance(axes, getattr(obstacle, "rotation", None), len(axes))
+    else:
+        return None
+    return 0.5 * (matrix + matrix.T)
+
+
 def obstacle_belief(obstacles: Sequence[ObstacleModel], dimension: int, t: float) -> ObstacleBelief:
-    """The belief of every obstacle in `obstacles` at time t."""
+    """The belief of every obstacle in `obstacles` at time t.
+
+    When any obstacle has a full covariance the belief carries `covariance` (m, n, n): Σ_j(t)
+    for those, σ_j(t)²·I for the isotropic ones, and sigma_j = √λ_max(Σ_j(t)) for the full
+    ones (σ_j(t) for the others). Otherwise `covariance` is None."""
+    covariances = [obstacle_covariance(o, t, dimension) for o in obstacles]
+    covariance = None
+    if any(matrix is not None for matrix in covariances):
+        covariance = np.empty((len(obstacles), dimension, dimension))
+        sigma = np.empty(len(obstacles))
+        for j, (obstacle, matrix) in enumerate(zip(obstacles, covariances, strict=True)):
+            if matrix is None:
+                sigma[j] = obstacle_sigma(obstacle, t)
+                covariance[j] = sigma[j] ** 2 * np.eye(dimension)
+            else:
+                sigma[j] = largest_sigma(matrix)
+                covariance[j] = matrix
+    else:
+        sigma = np.array([obstacle_sigma(o, t) for o in obstacles])
     return ObstacleBelief(
         mean=MotionTable([o.motion for o in obstacles], dimension).positions(t),
-        sigma=np.array([obstacle_sigma(o, t) for o in obstacles]),
+        sigma=sigma,
         radius=np.array([o.radius for o in obstacles]),
         epsilon=np.array([o.epsilon for o in obstacles]),
         p_d=np.array([o.p_d for o in obstacles]),
+        covariance=covariance,
     )
+
+
+def largest_sigma(covariance: np.ndarray) -> float:
+    """√λ_max(Σ): the largest standard deviation (m) of a covariance (m²)."""
+    return float(np.sqrt(np.linalg.eigvalsh(np.asarray(covariance, dtype=float))[-1]))
 
 
 def obstacle_rate_bounds(obstacles: Sequence[ObstacleModel]) -> tuple[np.ndarray, np.ndarray]:
     """Per obstacle, sup ‖μ̇_j‖ and sup |σ̇_j| (m/s) from its motion model and σ schedule,
-    steps excluded (a step is a belief discontinuity, see :mod:`stt_drake.core.motion`)."""
+    steps excluded (a step is a belief discontinuity, see :mod:`stt_drake.core.motion`).
+
+    For a covariance schedule σ_j is √λ_max(Σ_j(t)), and its bound is
+    :meth:`stt_drake.core.motion.CovarianceSchedule.sigma_rate_bound`: at least every
+    segment's |Δ√λ_max|/Δt, and a bound on the rate inside the segments too (Σ_j is linear
+    there, √λ_max of it is not). A constant covariance gives 0."""
     mean_speed = np.array([o.motion.speed_bound() for o in obstacles], dtype=float)
-    sigma_rate = np.array(
-        [0.0 if o.sigma_schedule is None else o.sigma_schedule.rate_bound() for o in obstacles],
-        dtype=float,
-    )
+    sigma_rate = np.array([_sigma_rate_bound(o) for o in obstacles], dtype=float)
     return mean_speed, sigma_rate
 
 
+def _sigma_rate_bound(obstacle: ObstacleModel) -> float:
+    schedule = getattr(obstacle, "covariance_schedule", None)
+    if schedule is not None:
+        return schedule.sigma_rate_bound()
+    if has_full_covariance(obstacle) or obstacle.sigma_schedule is None:
+        return 0.0
+    return obstacle.sigma_schedule.rate_bound()
+
+
 def obstacle_sigma(obstacle: ObstacleModel, t: float) -> float:
-    """σ_j(t): the schedule where given, else the constant `sigma`."""
+    """σ_j(t) (m): the schedule where given, else the constant `sigma`; for an obstacle
+    with a full covariance, √λ_max(Σ_j(t))."""
+    matrix = _full_covariance(obstacle, t)
+    if matrix is not None:
+        return largest_sigma(matrix)
     if obstacle.sigma_schedule is not None:
         return obstacle.sigma_schedule.sigma(t)
     return obstacle.sigma
+
+
+def obstacle_sigma_bounds(obstacle: ObstacleModel) -> tuple[float, float]:
+    """(low, high) (m) with low ≤ σ_j(t) ≤ high for every t: the constant σ, the range of a
+    σ schedule's values, √λ_max of a constant covariance, or
+    :meth:`stt_drake.core.motion.CovarianceSchedule.sigma_bounds`."""
+    schedule = getattr(obstacle, "covariance_schedule", None)
+    if schedule is not None:
+        return schedule.sigma_bounds()
+    matrix = _full_covariance(obstacle, 0.0)
+    if matrix is not None:
+        sigma = largest_sigma(matrix)
+        return sigma, sigma
+    if obstacle.sigma_schedule is not None:
+        values = obstacle.sigma_schedule.values
+        return float(min(values)), float(max(values))
+    return float(obstacle.sigma), float(obstacle.sigma)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stt_drake.core import backend
+from stt_drake.core import anisotropic, backend
 from stt_drake.core.belief import ObstacleBelief, record_size
 from stt_drake.core.probability import avoid_probability
 
@@ -56,6 +56,15 @@ def evaluate_invariants(
     One call of the compiled :func:`stt_drake.core._kernels.invariant_margins` for n ≤ 3 (unless
     the numpy path is selected, see :mod:`stt_drake.core.backend`), else numpy.
     """
+    if belief.covariance is not None:
+        center_q, tube_q, output_q = _anisotropic_probabilities(
+            output, center, radius, belief, r_min
+        )
+        return InvariantSample(
+            _margins(output, center, radius, belief.epsilon, center_q, tube_q, output_q),
+            output_q,
+            tube_q,
+        )
     kernel = backend.compiled("invariant_margins", belief.mean.shape[-1])
     if kernel is not None:
         margins, output_q, tube_q = kernel(
@@ -72,17 +81,66 @@ def evaluate_invariants(
     center_q = avoid_probability(center, belief.mean, belief.sigma, belief.radius + r_min)
     tube_q = avoid_probability(center, belief.mean, belief.sigma, belief.radius + max(radius, 0.0))
     output_q = avoid_probability(output, belief.mean, belief.sigma, belief.radius)
+    return InvariantSample(
+        _margins(output, center, radius, belief.epsilon, center_q, tube_q, output_q),
+        output_q,
+        tube_q,
+    )
+
+
+def _margins(
+    output: np.ndarray,
+    center: np.ndarray,
+    radius: float,
+    epsilon: np.ndarray,
+    center_q: np.ndarray,
+    tube_q: np.ndarray,
+    output_q: np.ndarray,
+) -> np.ndarray:
+    """The margins in :data:`INVARIANT_NAMES` order from the three probabilities."""
     # With no obstacle a probability margin is vacuous; 1 exceeds every real one (1 − ε < 1).
-    margins = np.array(
+    return np.array(
         [
             radius - float(np.linalg.norm(np.asarray(output) - np.asarray(center))),
-            np.min(center_q - belief.epsilon, initial=1.0),
-            np.min(tube_q - belief.epsilon, initial=1.0),
-            np.min(output_q - belief.epsilon, initial=1.0),
+            np.min(center_q - epsilon, initial=1.0),
+            np.min(tube_q - epsilon, initial=1.0),
+            np.min(output_q - epsilon, initial=1.0),
             radius,
         ]
     )
-    return InvariantSample(margins, output_q, tube_q)
+
+
+def center_avoid_probability(
+    center: np.ndarray, belief: ObstacleBelief, r_min: float
+) -> np.ndarray:
+    """q_j(c) with the buffered radius r_o_j + r_min, per obstacle (full covariances where
+    the belief has them)."""
+    if belief.covariance is None:
+        return avoid_probability(center, belief.mean, belief.sigma, belief.radius + r_min)
+    return _anisotropic_probabilities(center, center, 0.0, belief, r_min)[0]
+
+
+def _anisotropic_probabilities(
+    output: np.ndarray, center: np.ndarray, radius: float, belief: ObstacleBelief, r_min: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(q_j(c) with r_o + r_min, q_j(c) with r_o + r, q_j(y) with r_o) for a belief with
+    full covariances, each Σ_j decomposed once (:mod:`stt_drake.core.anisotropic`; not the
+    tube's kernel, so the monitor does not share the tube's code path)."""
+    count = belief.count
+    center_q, tube_q, output_q = np.empty(count), np.empty(count), np.empty(count)
+    center = np.asarray(center, dtype=float)
+    output = np.asarray(output, dtype=float)
+    for j in range(count):
+        variances, axes = anisotropic.eigen_decomposition(belief.covariance[j])
+        at_center = ((center - belief.mean[j]) @ axes)[None, :]
+        at_output = ((output - belief.mean[j]) @ axes)[None, :]
+        r_o = float(belief.radius[j])
+        center_q[j] = anisotropic.ball_probabilities(variances, at_center, r_o + r_min)[1][0]
+        tube_q[j] = anisotropic.ball_probabilities(variances, at_center, r_o + max(radius, 0.0))[
+            1
+        ][0]
+        output_q[j] = anisotropic.ball_probabilities(variances, at_output, r_o)[1][0]
+    return center_q, tube_q, output_q
 
 
 def evaluate_invariants_packed(

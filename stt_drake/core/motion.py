@@ -1,9 +1,11 @@
-"""Obstacle motion models and sigma schedules: mean μ_j(t) and σ_j(t) as functions of time.
+"""Obstacle motion models and sigma and covariance schedules: mean μ_j(t), σ_j(t) and
+Σ_j(t) as functions of time.
 
 Pure numpy, no Drake. Each model is a dataclass that a scenario YAML names with a tag
 (``motion: !Oscillation {...}``) and that evaluates itself at a time t.
 
-Each also bounds how fast it changes (``speed_bound`` in m/s, ``rate_bound`` in m/s for σ):
+Each also bounds how fast it changes (``speed_bound`` in m/s, ``rate_bound`` in m/s for σ,
+``sigma_rate_bound`` in m/s for the largest standard deviation √λ_max(Σ)):
 the fixed-rate tube needs those bounds to keep its guarantee over a whole update period
 (:mod:`stt_drake.core.fixed_rate`, "Discrete-time guarantee"). A piecewise-linear model may repeat a
 time once: that is a step (a belief jump, e.g. a tracker's measurement update), which is
@@ -160,6 +162,71 @@ class SigmaSchedule:
     def rate_bound(self) -> float:
         """Largest |Δσ|/Δt over the segments (m/s); a repeated time (a step) is not a segment."""
         return _slope_bound(self.times, np.asarray(self.values, dtype=float)[:, None])
+
+
+@dataclass
+class CovarianceSchedule:
+    """Piecewise-linear covariance Σ(t) (m²) of an obstacle centre through `covariances`
+    (n×n matrices) at `times` (s), held outside that span; a repeated time is a step.
+
+    Σ(t) is interpolated entrywise (the same ``np.interp`` as :class:`SigmaSchedule`, so a
+    step behaves alike). Between two samples Σ(t) = (1 − s)Σ_k + sΣ_{k+1}, s ∈ [0, 1]: a
+    convex combination of symmetric positive definite matrices is symmetric positive
+    definite (xᵀΣ(t)x = (1 − s)xᵀΣ_k x + s xᵀΣ_{k+1}x > 0 for x ≠ 0), so a schedule of
+    valid covariances is valid at every t.
+    """
+
+    times: list[float] = field(default_factory=list)
+    covariances: list[list[list[float]]] = field(default_factory=list)
+
+    def covariance(self, t: float) -> np.ndarray:
+        """Σ(t) (n, n), m²."""
+        samples = np.asarray(self.covariances, dtype=float)
+        flat = samples.reshape(samples.shape[0], -1)
+        values = [np.interp(t, self.times, flat[:, i]) for i in range(flat.shape[1])]
+        return np.array(values).reshape(samples.shape[1:])
+
+    def sigma_bounds(self) -> tuple[float, float]:
+        """(low, high) with low ≤ σ_max(t) ≤ high for every t, σ_max(t) = √λ_max(Σ(t)) (m).
+
+        λ_max is convex in Σ, so along a segment λ_max(Σ(t)) ≤ max(λ_max(Σ_k), λ_max(Σ_{k+1})):
+        `high` is the largest sample value, attained. λ_max(Σ) ≥ tr Σ/n and the trace is
+        linear in t, so `low` = √(min_k tr Σ_k / n), a lower bound (σ_max can dip below
+        every sample's: a covariance that turns, Σ_0 = diag(1, 0.01), Σ_1 = diag(0.01, 1),
+        has σ_max = 1 at both samples and √0.505 halfway).
+        """
+        samples = np.asarray(self.covariances, dtype=float)
+        n = samples.shape[-1]
+        largest = np.linalg.eigvalsh(samples)[:, -1]
+        traces = np.trace(samples, axis1=1, axis2=2)
+        return float(np.sqrt(np.min(traces) / n)), float(np.sqrt(np.max(largest)))
+
+    def sigma_rate_bound(self) -> float:
+        """sup_t |σ̇_max(t)| (m/s) with σ_max(t) = √λ_max(Σ(t)), steps excluded.
+
+        The segment slopes |Δ√λ_max|/Δt are not enough: on a segment Σ(t) is affine, and
+        σ_max(t) = √λ_max(Σ(t)) is not (it can change inside a segment whose samples have
+        the same σ_max, see :meth:`sigma_bounds`). What holds: f(t) = λ_max(Σ(t)) is convex
+        along the segment (λ_max is convex in Σ), so its one-sided derivatives lie between
+        those at the ends, which are values uᵀΣ̇u of unit vectors: |ḟ| ≤ ‖ΔΣ‖₂/Δt. With
+        σ̇_max = ḟ/(2σ_max) and σ_max² ≥ tr Σ(t)/n ≥ min(tr Σ_k, tr Σ_{k+1})/n,
+
+            |σ̇_max| ≤ ‖ΔΣ‖₂ / (2Δt·√(min(tr Σ_k, tr Σ_{k+1})/n))   on segment k.
+
+        This is at least the segment slope |Δ√λ_max|/Δt (mean value theorem) and equals
+        the true sup for Σ(t) = σ(t)²I. A repeated time (a step) is not a segment.
+        """
+        samples = np.asarray(self.covariances, dtype=float)
+        dt = np.diff(np.asarray(self.times, dtype=float))
+        if dt.size == 0:
+            return 0.0
+        n = samples.shape[-1]
+        change = np.linalg.norm(np.diff(samples, axis=0), ord=2, axis=(1, 2))
+        traces = np.trace(samples, axis1=1, axis2=2)
+        floor = np.sqrt(np.minimum(traces[:-1], traces[1:]) / n)
+        segments = dt > 0.0
+        rates = change[segments] / (2.0 * dt[segments] * floor[segments])
+        return float(np.max(rates, initial=0.0))
 
 
 def _slope_bound(times: list[float], values: np.ndarray) -> float:

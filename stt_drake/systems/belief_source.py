@@ -11,7 +11,9 @@ from stt_drake.core import backend
 from stt_drake.core.belief import (
     ObstacleModel,
     belief_size,
+    covariance_size,
     obstacle_belief,
+    obstacle_covariance,
     obstacle_sigma,
     record_size,
 )
@@ -20,7 +22,9 @@ from stt_drake.core.motion import MotionTable
 
 class ObstacleBeliefSource(LeafSystem):
     """Outputs `obstacle_belief`: [mean, sigma, radius, epsilon, p_d] per obstacle
-    (layout in :mod:`stt_drake.core.belief`), from each obstacle's motion model and σ schedule.
+    (layout in :mod:`stt_drake.core.belief`), from each obstacle's motion model and σ schedule;
+    when some obstacle has a full covariance, also `obstacle_covariance` (each Σ_j(t), m²;
+    sigma then holds √λ_max(Σ_j)).
 
     Stands in for a tracker or SLAM front end; a user with a real one replaces this system
     by anything that writes the same port.
@@ -36,17 +40,39 @@ class ObstacleBeliefSource(LeafSystem):
         self._obstacles = list(obstacles)
         self._dimension = dimension
         count = len(self._obstacles)
-        self._template = obstacle_belief(self._obstacles, dimension, 0.0).to_vector()
-        self._template = self._template.reshape(count, record_size(dimension))
+        belief = obstacle_belief(self._obstacles, dimension, 0.0)
+        self._template = belief.to_vector().reshape(count, record_size(dimension))
 
         self._motions = MotionTable([o.motion for o in self._obstacles], dimension)
-        self._scheduled = [j for j, o in enumerate(self._obstacles) if o.sigma_schedule is not None]
+        self._scheduled = [
+            j
+            for j, o in enumerate(self._obstacles)
+            if o.sigma_schedule is not None or getattr(o, "covariance_schedule", None) is not None
+        ]
         self.DeclareVectorOutputPort(
             "obstacle_belief",
             belief_size(count, dimension),
             self._calc_belief,
             prerequisites_of_calc={self.time_ticket()},
         )
+        #: Σ_j at t = 0 (m, n, n) when some obstacle has a full covariance, else None.
+        self._covariance = belief.covariance
+        if self._covariance is not None:
+            # Constant covariances do not depend on time: downstream caches keep them.
+            self.DeclareVectorOutputPort(
+                "obstacle_covariance",
+                covariance_size(count, dimension),
+                self._calc_covariance,
+                prerequisites_of_calc=(
+                    {self.time_ticket()} if self._scheduled else {self.nothing_ticket()}
+                ),
+            )
+
+    @property
+    def anisotropic(self) -> bool:
+        """Whether some obstacle has a full covariance (then the `obstacle_covariance`
+        output port exists: each Σ_j(t), m², row-major, obstacle-major)."""
+        return self._covariance is not None
 
     @property
     def obstacle_count(self) -> int:
@@ -76,9 +102,22 @@ class ObstacleBeliefSource(LeafSystem):
             table = self._template.copy()
             vector = table.reshape(-1)
             table[:, :n] = self._motions.positions(t)
-        for j in self._scheduled:
+        for j in self._scheduled:  # σ schedules, and √λ_max of Σ schedules
             table[j, n] = obstacle_sigma(self._obstacles[j], t)
         return vector
 
+    def covariance_vector(self, t: float) -> np.ndarray:
+        """The `obstacle_covariance` port value at time t (anisotropic sources only)."""
+        table = self._covariance.copy()
+        n = self._dimension
+        for j in self._scheduled:
+            obstacle = self._obstacles[j]
+            full = obstacle_covariance(obstacle, t, n)  # None: a σ schedule, Σ = σ(t)² I
+            table[j] = obstacle_sigma(obstacle, t) ** 2 * np.eye(n) if full is None else full
+        return table.reshape(-1)
+
     def _calc_belief(self, context: Context, output: BasicVector) -> None:
         output.SetFromVector(self.belief_vector(context.get_time()))
+
+    def _calc_covariance(self, context: Context, output: BasicVector) -> None:
+        output.SetFromVector(self.covariance_vector(context.get_time()))

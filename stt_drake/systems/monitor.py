@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -17,14 +18,15 @@ from pydrake.systems.framework import (
     ValueProducer,
 )
 
-from stt_drake.core.belief import ObstacleBelief, belief_size
+from stt_drake.core.belief import ObstacleBelief, belief_size, covariance_size
 from stt_drake.core.invariants import (
     INVARIANT_NAMES,
     InvariantTracker,
     RecoveryTracker,
+    center_avoid_probability,
+    evaluate_invariants,
     evaluate_invariants_packed,
 )
-from stt_drake.core.probability import avoid_probability
 
 #: Default step-rate limit L (integrator steps per simulated second) of the watchdog, used
 #: when a scenario's ``max_steps_per_second`` is 0. Chosen so that no scenario here runs
@@ -128,7 +130,9 @@ class InvariantMonitor(LeafSystem):
     probability itself rather than trusting the tube's diagnostics, so a bug in the tube
     cannot hide from it."""
 
-    def __init__(self, dimension: int, obstacle_count: int, r_min: float) -> None:
+    def __init__(
+        self, dimension: int, obstacle_count: int, r_min: float, anisotropic: bool = False
+    ) -> None:
         super().__init__()
         self._dimension = dimension
         self._r_min = r_min
@@ -138,6 +142,14 @@ class InvariantMonitor(LeafSystem):
         )
         self._output_port = self.DeclareVectorInputPort("output", dimension)
         self._recovery_port = self.DeclareVectorInputPort("recovery", obstacle_count)
+        # With `anisotropic`: each Σ_j (row-major, obstacle-major); the margins use it.
+        self._covariance_port = (
+            self.DeclareVectorInputPort(
+                "obstacle_covariance", covariance_size(obstacle_count, dimension)
+            )
+            if anisotropic
+            else None
+        )
         self._sample = self.DeclareCacheEntry(
             description="invariant margins",
             value_producer=ValueProducer(
@@ -166,14 +178,32 @@ class InvariantMonitor(LeafSystem):
         )
 
     def _calc_sample(self, context: Context, value: AbstractValue) -> None:
-        value.set_value(
-            evaluate_invariants_packed(
+        if self._covariance_port is not None:
+            tube = self._tube_port.Eval(context)
+            sample = evaluate_invariants(
+                self._output_port.Eval(context),
+                tube[:-1],
+                float(tube[-1]),
+                self._belief(context),
+                self._r_min,
+            )
+        else:
+            sample = evaluate_invariants_packed(
                 self._output_port.Eval(context),
                 self._tube_port.Eval(context),
                 self._belief_port.Eval(context),
                 self._r_min,
             )
-        )
+        value.set_value(sample)
+
+    def _belief(self, context: Context) -> ObstacleBelief:
+        """The belief in `context`, with the covariances when the port is declared."""
+        belief = ObstacleBelief.from_vector(self._belief_port.Eval(context), self._dimension)
+        if self._covariance_port is None:
+            return belief
+        n = self._dimension
+        covariance = self._covariance_port.Eval(context).reshape(belief.count, n, n)
+        return replace(belief, covariance=covariance)
 
     def _calc_output_avoid(self, context: Context, output: BasicVector) -> None:
         output.SetFromVector(self._sample.Eval(context).output_avoid_probability)
@@ -184,9 +214,8 @@ class InvariantMonitor(LeafSystem):
     def center_margins(self, context: Context) -> np.ndarray:
         """q_j(c) − ε_j per obstacle at the tube centre (buffered radius r_o_j + r_min)."""
         tube = self._tube_port.Eval(context)
-        belief = ObstacleBelief.from_vector(self._belief_port.Eval(context), self._dimension)
-        q = avoid_probability(tube[:-1], belief.mean, belief.sigma, belief.radius + self._r_min)
-        return q - belief.epsilon
+        belief = self._belief(context)
+        return center_avoid_probability(tube[:-1], belief, self._r_min) - belief.epsilon
 
     def attach(
         self,

@@ -17,7 +17,7 @@ from pydrake.systems.framework import (
     ValueProducer,
 )
 
-from stt_drake.core.belief import ObstacleBelief, belief_size
+from stt_drake.core.belief import ObstacleBelief, belief_size, covariance_size
 from stt_drake.core.circulation import carry_circulation
 from stt_drake.core.fixed_rate import BeliefRateBounds
 from stt_drake.core.tube import TubeEvaluation, TubeLaw
@@ -26,9 +26,11 @@ from stt_drake.core.tube import TubeEvaluation, TubeLaw
 class SpatiotemporalTube(LeafSystem):
     """The tube Γ(t) = B(c(t), r(t)) of Sec. 3, driven online by the obstacle belief.
 
-    Input `obstacle_belief`; outputs `tube` = [c, r] (n + 1), `diagnostics` =
-    [q_j (m), d̂_j (m), θ_j (m)] and `recovery` (m): 1 while the tube is recovering from
-    obstacle j (its belief left the bounds the guarantee relies on; see
+    Input `obstacle_belief` (and, with ``anisotropic=True``, `obstacle_covariance`: each
+    Σ_j, m², row-major; the law then uses the exact probabilities of
+    :mod:`stt_drake.core.anisotropic_tube`; continuous mode only); outputs `tube` = [c, r]
+    (n + 1), `diagnostics` = [q_j (m), d̂_j (m), θ_j (m)] and `recovery` (m): 1 while the
+    tube is recovering from obstacle j (its belief left the bounds the guarantee relies on; see
     :mod:`stt_drake.core.tube`), else 0.
 
     Two modes:
@@ -66,8 +68,14 @@ class SpatiotemporalTube(LeafSystem):
         update_period: float | None = None,
         target_input: bool = False,
         rate_bounds: BeliefRateBounds | None = None,
+        anisotropic: bool = False,
     ) -> None:
         super().__init__()
+        if anisotropic and update_period is not None:
+            raise ValueError(
+                "anisotropic: the fixed-rate tube's period guarantee is derived for isotropic "
+                "beliefs (sigma) only; use update_period=None (continuous) with covariances"
+            )
         if update_period is not None and rate_bounds is None:
             raise ValueError(
                 "rate_bounds: a fixed-rate tube needs each obstacle's belief rate bounds "
@@ -84,6 +92,14 @@ class SpatiotemporalTube(LeafSystem):
         )
         self._target_port = (
             self.DeclareVectorInputPort("target", self._dimension) if target_input else None
+        )
+        # With `anisotropic`: each Σ_j, row-major, obstacle-major; the law uses it exactly.
+        self._covariance_port = (
+            self.DeclareVectorInputPort(
+                "obstacle_covariance", covariance_size(obstacle_count, self._dimension)
+            )
+            if anisotropic
+            else None
         )
         initial_center = np.asarray(initial_center, dtype=float)
         circulates = self._dimension == 3 and obstacle_count > 0
@@ -183,7 +199,12 @@ class SpatiotemporalTube(LeafSystem):
         return axes.reshape(self._count, 3)
 
     def _belief(self, context: Context) -> ObstacleBelief:
-        return ObstacleBelief.from_vector(self._belief_port.Eval(context), self._dimension)
+        belief = ObstacleBelief.from_vector(self._belief_port.Eval(context), self._dimension)
+        if self._covariance_port is None:
+            return belief
+        n = self._dimension
+        covariance = self._covariance_port.Eval(context).reshape(belief.count, n, n)
+        return replace(belief, covariance=covariance)
 
     def _law_in(self, context: Context) -> TubeLaw:
         """The law with the target in use: ``law.target``, or the `target` input if declared."""
@@ -197,9 +218,14 @@ class SpatiotemporalTube(LeafSystem):
     def _calc_evaluation(self, context: Context, value: AbstractValue) -> None:
         law = self._law_in(context)
         center = self.center(context)
-        evaluation = law.evaluate_packed(
-            center, self._belief_port.Eval(context), circulation=self._circulation(context)
-        )
+        if self._covariance_port is not None:
+            evaluation = law.evaluate(
+                center, self._belief(context), circulation=self._circulation(context)
+            )
+        else:
+            evaluation = law.evaluate_packed(
+                center, self._belief_port.Eval(context), circulation=self._circulation(context)
+            )
         tube = np.empty(self._dimension + 1)  # the `tube` port value, [c, r]
         tube[:-1] = center
         tube[-1] = evaluation.radius
