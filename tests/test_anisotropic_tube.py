@@ -121,8 +121,9 @@ def test_reduces_to_the_isotropic_law_for_sigma_squared_identity(n, compiled):
             if n == 3:
                 axes = np.zeros((6, 3))
                 axes[:, 2] = 1.0
-            iso = law.evaluate(center, belief, circulation=axes)
-            aniso = law.evaluate(center, with_covariance, circulation=axes)
+            # Every d̂_j exact on both sides (the two laws prune at different headrooms).
+            iso = law.evaluate(center, belief, prune=False, circulation=axes)
+            aniso = law.evaluate(center, with_covariance, prune=False, circulation=axes)
             exact = aniso.avoid_probability <= belief.p_d  # computed, not a pruning bound
             # q: two exact methods (noncentral χ and the contour integral), 1e-12 apart.
             np.testing.assert_allclose(
@@ -139,6 +140,10 @@ def test_reduces_to_the_isotropic_law_for_sigma_squared_identity(n, compiled):
             tolerance = 1e-9 + 1e-11 / max(gap, 1e-3) ** 2
             np.testing.assert_allclose(aniso.center_rate, iso.center_rate, rtol=0, atol=tolerance)
             checked_active += int(np.any(iso.theta > 0))
+            # Pruned at r_max + 25/ν, r is lower by at most n_o·e^{−25}/ν, never higher.
+            pruned = law.evaluate(center, with_covariance, circulation=axes).radius
+            assert aniso.radius - 6 * np.exp(-25.0) / law.nu - 1e-12 <= pruned
+            assert pruned <= aniso.radius + 1e-12
     assert checked_active > 10  # the law's obstacle terms were exercised, not only pruned
 
 
