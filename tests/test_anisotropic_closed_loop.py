@@ -118,3 +118,35 @@ def test_the_inflated_belief_does_not_reach_the_target(run_scenario, name):
     inflated = simulate(_inflated(name)).metrics
     assert not inflated["reached"] and inflated["stop_reason"] is None
     assert all(v["holds"] for v in inflated["invariants"].values())
+
+
+def test_twenty_thousand_true_obstacle_runs_certify_every_obstacle(tmp_path):
+    """Issue 13: true centres drawn from N(μ_j, Σ_j) (Cholesky of the logged Σ_j(t)),
+    20 000 runs; every obstacle and both checks certified by the simultaneous 99 %
+    Clopper-Pearson bound against 1 − ε_j."""
+    import json
+
+    from stt_drake.cli.main import main
+
+    out = tmp_path / "campaign"
+    code = main(
+        [
+            "campaign",
+            str(DIAGRAMS / "omni_anisotropic.yaml"),
+            "--runs",
+            "20000",
+            "--workers",
+            "2",
+            "--out",
+            str(out),
+            "--no-progress",
+            "--no-figures",
+        ]
+    )
+    assert code == 0
+    summary = json.loads((out / "campaign.json").read_text())
+    assert summary["runs"] == 20000 and summary["holds"] is True
+    for obstacle in summary["obstacles"]:
+        assert obstacle["verdict"] == "certified"
+        assert obstacle["tube"]["verdict"] == "certified"
+        assert obstacle["clopper_pearson_upper_99"] < obstacle["allowed_collision_probability"]

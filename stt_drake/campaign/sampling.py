@@ -2,8 +2,8 @@
 
 Run i's seed is :func:`run_seed` (campaign seed, i). A true-obstacle run draws the
 standardised offsets ξ (:func:`sample_xi`) and samples the true obstacles
-O_j(t) = μ_j(t) + σ_j(t)·ξ_j against one logged :class:`ClosedLoop`
-(:func:`sample_true_obstacles`).
+O_j(t) = μ_j(t) + σ_j(t)·ξ_j (μ_j(t) + L_j(t)·ξ_j, Σ_j = L_j L_jᵀ, with full covariances)
+against one logged :class:`ClosedLoop` (:func:`sample_true_obstacles`).
 """
 
 from __future__ import annotations
@@ -48,6 +48,7 @@ class ClosedLoop:
     sigma: np.ndarray  # (T, m) belief standard deviations σ_j(t)
     obstacle_radius: np.ndarray  # (T, m) r_o_j
     epsilon: np.ndarray  # (m,) ε_j checked against
+    covariance: np.ndarray | None = None  # (T, m, n, n) full Σ_j(t) (m²), None: σ_j² I
 
     @property
     def count(self) -> int:
@@ -70,22 +71,27 @@ class ClosedLoop:
             sigma=run.sigma.copy(),
             obstacle_radius=run.obstacle_radius.copy(),
             epsilon=np.asarray(checked, dtype=float).reshape(run.count).copy(),
+            covariance=None if run.covariance is None else run.covariance.copy(),
         )
 
     def save(self, path: Path) -> None:
-        """Write every field to an ``.npz`` file."""
-        np.savez_compressed(path, **{f.name: getattr(self, f.name) for f in fields(self)})
+        """Write every field to an ``.npz`` file (an isotropic loop has no covariance)."""
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        np.savez_compressed(path, **{k: v for k, v in values.items() if v is not None})
 
     @classmethod
     def load(cls, path: Path) -> ClosedLoop:
         """Read a closed loop written by :meth:`save`."""
         with np.load(path) as data:
-            return cls(**{f.name: data[f.name] for f in fields(cls)})
+            return cls(**{f.name: data[f.name] for f in fields(cls) if f.name in data.files})
 
     def collision_probability(self) -> dict[str, np.ndarray]:
-        """The belief's own collision probabilities (T, m) per check (noncentral χ²)."""
+        """The belief's own collision probabilities (T, m) per check (noncentral χ², or
+        the generalized chi-square of :mod:`stt_drake.core.anisotropic` with full Σ_j)."""
         from stt_drake.core.probability import avoid_probability
 
+        if self.covariance is not None:
+            return self._anisotropic_collision_probability()
         output = avoid_probability(
             self.output[:, None, :], self.mean, self.sigma, self.obstacle_radius
         )
@@ -96,6 +102,23 @@ class ClosedLoop:
             self.obstacle_radius + np.maximum(self.radius, 0.0)[:, None],
         )
         return {"output": 1.0 - output, "tube": 1.0 - tube}
+
+    def _anisotropic_collision_probability(self) -> dict[str, np.ndarray]:
+        from stt_drake.core import anisotropic
+
+        steps, count = self.sigma.shape
+        output, tube = np.empty((steps, count)), np.empty((steps, count))
+        for k in range(steps):
+            for j in range(count):
+                mean, covariance = self.mean[k, j], self.covariance[k, j]
+                r_o = float(self.obstacle_radius[k, j])
+                output[k, j] = anisotropic.collision_probability(
+                    self.output[k], mean, covariance, r_o
+                )
+                tube[k, j] = anisotropic.collision_probability(
+                    self.center[k], mean, covariance, r_o + max(float(self.radius[k]), 0.0)
+                )
+        return {"output": output, "tube": tube}
 
 
 def sample_xi(
@@ -145,11 +168,17 @@ def sample_true_obstacles(
 
     Record: ``{"run", "seed", "output": [[[start, stop), ...] per obstacle], "tube": ...}``
     (time-index ranges of the closed loop's log). A collision is ‖y − O_j‖ < r_o_j
-    (output) or ‖c − O_j‖ < r_o_j + r (tube), with O_j = μ_j + σ_j·ξ_j.
+    (output) or ‖c − O_j‖ < r_o_j + r (tube), with O_j = μ_j + σ_j·ξ_j, or
+    O_j = μ_j + L_j·ξ_j with L_j the Cholesky factor of a full Σ_j = L_j L_jᵀ (so
+    O_j ~ N(μ_j, Σ_j)).
     """
     seeds = [seed for _, seed in runs]
     xi = sample_xi(seeds, loop.t, loop.mean.shape[1:], motion, tau)
-    scaled = loop.sigma[None, :, :, None] * xi  # σ_j ξ_j: (R, T, m, n)
+    if loop.covariance is None:
+        scaled = loop.sigma[None, :, :, None] * xi  # σ_j ξ_j: (R, T, m, n)
+    else:
+        factor = np.linalg.cholesky(loop.covariance)  # (T, m, n, n)
+        scaled = np.einsum("tjab,rtjb->rtja", factor, xi)
     reach = {
         "output": (loop.output, loop.obstacle_radius),
         "tube": (loop.center, loop.obstacle_radius + np.maximum(loop.radius, 0.0)[:, None]),
