@@ -20,6 +20,7 @@ from stt_drake.plotting.style import (
     _obstacle_colors,
     _obstacle_discs,
     _sigma_colorbar,
+    anisotropic_levels,
 )
 from stt_drake.runlog import RunLog
 
@@ -51,11 +52,24 @@ def _snapshot_limits(run: RunLog, indices: Sequence[int], extents: np.ndarray) -
     return np.column_stack([low - pad, high + pad])
 
 
+def _draw_anisotropic_levels(
+    ax: Any, run: RunLog, index: int, j: int, color: Any, light: float
+) -> None:
+    """{q̂_j ≤ p_d_j} and {q̂_j ≤ ε_j} of a full covariance as filled contours of the exact
+    q̂_j, on a grid 1.5× the σ_max disc of {q̂_j ≤ p_d_j} (`light`) in half-width."""
+    extent = 1.5 * (light if np.isfinite(light) else run.obstacle_radius[index, j])
+    x, y, q = anisotropic_levels(run, index, j, max(extent, 1e-3))
+    for level, alpha in ((run.p_d[index, j], _LIGHT_ALPHA), (run.epsilon[index, j], _DARK_ALPHA)):
+        if np.min(q) <= level:
+            ax.contourf(x, y, q, levels=[-1.0, float(level)], colors=[color], alpha=alpha, zorder=1)
+
+
 def plot_snapshots(log: Mapping[str, Any], times: Sequence[float] | None = None) -> Figure:
     """Top view of a 2D run at a few instants, one panel per instant.
 
     Each panel shows, for every obstacle, the discs {q̂_j ≤ p_d_j} (light) and
-    {q̂_j ≤ ε_j} (darker) of the point avoidance probability q̂_j(x) = P(‖x − O_j‖ ≥ r_o_j),
+    {q̂_j ≤ ε_j} (darker) of the point avoidance probability q̂_j(x) = P(‖x − O_j‖ ≥ r_o_j)
+    (with full covariances: their exact shapes, filled contours of q̂_j; colour by σ_max),
     the nominal disc B(mean_j, r_o_j) (outline) and the mean's path so far (dotted), all
     coloured by σ_j; the tube Γ(t) = B(c, r); the output path and the centre path so far;
     the start and target sets. Panels share limits and use equal aspect.
@@ -90,10 +104,17 @@ def plot_snapshots(log: Mapping[str, Any], times: Sequence[float] | None = None)
             color = cmap(norm(run.sigma[index, j]))
             center = run.mean[index, j]
             light, dark = disc[j]
-            if np.isfinite(light):
-                ax.add_patch(Circle(center, light, fc=color, alpha=_LIGHT_ALPHA, lw=0, zorder=1))
-            if np.isfinite(dark):
-                ax.add_patch(Circle(center, dark, fc=color, alpha=_DARK_ALPHA, lw=0, zorder=1))
+            if run.covariance is not None:  # the exact, non-circular level sets
+                _draw_anisotropic_levels(ax, run, index, j, color, light)
+            else:
+                if np.isfinite(light):
+                    ax.add_patch(
+                        Circle(center, light, fc=color, alpha=_LIGHT_ALPHA, lw=0, zorder=1)
+                    )
+                if np.isfinite(dark):
+                    ax.add_patch(
+                        Circle(center, dark, fc=color, alpha=_DARK_ALPHA, lw=0, zorder=1)
+                    )
             ax.add_patch(
                 Circle(center, run.obstacle_radius[index, j], fc="none", ec=color, lw=1.4, zorder=3)
             )

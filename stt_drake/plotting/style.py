@@ -8,7 +8,8 @@ The obstacle uncertainty is drawn as the sub-level sets of the point avoidance p
 q̂_j(x) = P(‖x − O_j‖ ≥ r_o_j): {q̂_j ≤ p_d_j} (light, where the tube starts to react) and
 {q̂_j ≤ ε_j} (darker, what the robot's output must stay out of). q̂_j grows with the
 distance to the mean, so both sets are discs around the mean; their radii come from a 1-D
-root find (:func:`level_set_radius`).
+root find (:func:`level_set_radius`). With a full covariance Σ_j they are not discs: 2D
+figures draw them as contours of the exact q̂_j on a grid (:func:`anisotropic_levels`).
 """
 
 from __future__ import annotations
@@ -105,3 +106,26 @@ def _obstacle_discs(run: RunLog, index: int) -> np.ndarray:
             for j in range(run.count)
         ]
     ).reshape(run.count, 2)
+
+
+#: Grid points per axis of :func:`anisotropic_levels`.
+LEVEL_GRID = 121
+
+
+def anisotropic_levels(
+    run: RunLog, index: int, j: int, extent: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(X, Y, Q): q̂_j(x) = P(‖x − O_j‖ ≥ r_o_j) for O_j ~ N(μ_j, Σ_j) (exact,
+    :mod:`stt_drake.core.anisotropic`) on a LEVEL_GRID² grid of half-width `extent` (m)
+    around μ_j at sample `index` of a 2D run with covariances, for contouring its level
+    sets."""
+    from stt_drake.core import anisotropic
+
+    mean = run.mean[index, j]
+    axis = np.linspace(-extent, extent, LEVEL_GRID)
+    x, y = np.meshgrid(mean[0] + axis, mean[1] + axis)
+    points = np.column_stack([x.ravel(), y.ravel()])
+    q = anisotropic.avoid_probability(
+        points, mean, run.covariance[index, j], float(run.obstacle_radius[index, j])
+    )
+    return x, y, np.asarray(q).reshape(x.shape)

@@ -1,0 +1,40 @@
+"""Pictures of full covariances (issue 13): the 2D snapshots draw the exact, non-circular
+level sets {q̂_j ≤ ε_j} and {q̂_j ≤ p_d_j}."""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib.contour import QuadContourSet
+
+from stt_drake.core import anisotropic
+from stt_drake.plotting import plot_snapshots
+from stt_drake.plotting.style import LEVEL_GRID, _obstacle_discs, anisotropic_levels
+from stt_drake.runlog import RunLog
+
+
+def test_2d_snapshot_draws_the_exact_level_sets(run_scenario):
+    """Every vertex of each drawn contour lies within one grid spacing h of the true level
+    set q̂_j = level (first-order distance |q̂ − level|/‖∇q̂‖, both exact), h < 6 cm, and the
+    ε set is elongated along Σ's long axis (x: σ = 0.5 m) against its short one (0.05 m)."""
+    log = RunLog.of(run_scenario("omni_anisotropic").log)
+    ax = plot_snapshots(log, times=[0.0]).axes[0]
+    contours = [c for c in ax.collections if isinstance(c, QuadContourSet)]
+    assert len(contours) == 2 * log.count  # p_d and ε per obstacle, in that order
+    discs = _obstacle_discs(log, 0)
+    for k, contour in enumerate(contours):
+        j = k // 2
+        level = log.p_d[0, j] if k % 2 == 0 else log.epsilon[0, j]
+        extent = 1.5 * discs[j, 0]  # the grid plot_snapshots contours on
+        _x, _y, grid = anisotropic_levels(log, 0, j, extent)
+        assert grid.min() <= level < grid[[0, -1], :].min()  # the level set is inside the grid
+        h = 2 * extent / (LEVEL_GRID - 1)
+        assert h < 0.06
+        vertices = np.concatenate([path.vertices for path in contour.get_paths()])
+        args = (log.mean[0, j], log.covariance[0, j], float(log.obstacle_radius[0, j]))
+        q = anisotropic.avoid_probability(vertices, *args)
+        slope = np.linalg.norm(anisotropic.avoid_probability_gradient(vertices, *args), axis=1)
+        # first-order distance of each vertex from the true level set q̂ = level
+        assert np.all(np.abs(q - level) / slope <= h), (j, level, h)
+        if k % 2 == 1:  # the ε set: long along x, short along y
+            size = vertices.max(axis=0) - vertices.min(axis=0)
+            assert size[0] > 3 * size[1]
