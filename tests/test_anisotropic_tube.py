@@ -329,3 +329,17 @@ def test_fixed_rate_tube_with_covariances_is_refused():
             rate_bounds=BeliefRateBounds.still(2),
             anisotropic=True,
         )
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_level_set_radii_reduce_to_the_isotropic_radius(n):
+    """Σ = σ²I: the boundary of {q̂ ≤ level} is the sphere of core.probability's
+    level_set_radius (a separate root find on the noncentral chi law) in every direction."""
+    from stt_drake.core.probability import level_set_radius
+
+    rng = np.random.default_rng(SEED + 60 + n)
+    directions = rng.normal(size=(50, n))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    for sigma, level in ((0.3, 0.95), (0.05, 0.9999), (1.0, 0.7)):
+        radii = anisotropic.level_set_radii(directions, sigma**2 * np.eye(n), 0.4, level)
+        np.testing.assert_allclose(radii, level_set_radius(level, sigma, 0.4, n), rtol=1e-8)

@@ -7,7 +7,7 @@ import numpy as np
 from matplotlib.contour import QuadContourSet
 
 from stt_drake.core import anisotropic
-from stt_drake.plotting import plot_snapshots
+from stt_drake.plotting import plot_snapshots, plot_snapshots_3d
 from stt_drake.plotting.style import LEVEL_GRID, _obstacle_discs, anisotropic_levels
 from stt_drake.runlog import RunLog
 
@@ -38,3 +38,26 @@ def test_2d_snapshot_draws_the_exact_level_sets(run_scenario):
         if k % 2 == 1:  # the ε set: long along x, short along y
             size = vertices.max(axis=0) - vertices.min(axis=0)
             assert size[0] > 3 * size[1]
+
+
+def test_3d_level_set_wire_lies_on_the_exact_level_set(run_scenario):
+    """uav_anisotropic's ε level sets in the 3D snapshot: every wire point has q̂_j = ε_j
+    (the radial bisection's 1e-9·σ_max times the slope), and the set reaches farther along
+    the flight direction u = (1, 1, 1)/√3 (σ = 0.6 m) than across it (σ = 0.05 m)."""
+    from stt_drake.plotting.run3d import _level_set_wire
+
+    log = RunLog.of(run_scenario("uav_anisotropic").log)
+    u = np.ones(3) / np.sqrt(3.0)
+    for j in range(log.count):
+        wire = _level_set_wire(log, 0, j, 4)
+        points = wire[:, np.all(np.isfinite(wire), axis=0)].T
+        args = (log.mean[0, j], log.covariance[0, j], float(log.obstacle_radius[0, j]))
+        q = anisotropic.avoid_probability(points, *args)
+        slope = np.linalg.norm(anisotropic.avoid_probability_gradient(points, *args), axis=1)
+        assert np.all(np.abs(q - log.epsilon[0, j]) <= 1e-8 * slope + 1e-12)
+        offsets = points - log.mean[0, j]
+        along = np.abs(offsets @ u)
+        across = np.linalg.norm(offsets - np.outer(offsets @ u, u), axis=1)
+        assert along.max() > 1.5 * across.max()
+    axes = plot_snapshots_3d(log).axes
+    assert len(axes) >= 3

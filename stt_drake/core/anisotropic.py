@@ -240,6 +240,43 @@ def quantile_distance(
     return _result(quantile_radius(variances, offsets, eps) - r_o, single)
 
 
+def level_set_radii(
+    directions: np.ndarray, covariance: np.ndarray, obstacle_radius: float, level: float
+) -> np.ndarray:
+    """Distances t_k from the mean along unit `directions` (k, n) at which
+    q̂(μ + t u_k) = P(‖μ + t u_k − O‖ ≥ r_o) equals `level` ∈ (0, 1), O ~ N(μ, Σ).
+
+    By Anderson's theorem (a centred Gaussian, the symmetric convex ball B(0, r_o)), the
+    collision probability P(O − μ ∈ B(t u, r_o)) does not increase with t ≥ 0, so q̂ grows
+    along every ray from μ and {q̂ ≤ level} is star-shaped about μ: each ray meets its
+    boundary once. Found by bisection to 1e-9 of √λ_max; 0 where q̂(μ) ≥ level already.
+    """
+    variances, axes = eigen_decomposition(covariance)
+    units = np.asarray(directions, dtype=float) @ axes  # in the eigenbasis
+    radius = _positive(obstacle_radius, "obstacle_radius")
+    scale = float(np.sqrt(variances[-1]))
+
+    def avoid(t: np.ndarray) -> np.ndarray:
+        return ball_probabilities(variances, units * t[:, None], radius)[1]
+
+    low = np.zeros(len(units))
+    high = np.full(len(units), radius + 2.0 * scale)
+    for _ in range(200):  # grow the bracket until q̂ ≥ level at its top
+        short = avoid(high) < level
+        if not np.any(short):
+            break
+        high[short] *= 2.0
+    inside = avoid(low) < level
+    for _ in range(80):
+        if np.all(high - low <= 1e-9 * scale):
+            break
+        middle = 0.5 * (low + high)
+        below = avoid(middle) < level
+        low = np.where(below, middle, low)
+        high = np.where(below, high, middle)
+    return np.where(inside, 0.5 * (low + high), 0.0)
+
+
 # --------------------------------------------------------------------------- eigenbasis API
 def ball_probabilities(
     variances: np.ndarray, offsets: np.ndarray, radius: float

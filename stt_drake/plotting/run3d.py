@@ -62,6 +62,24 @@ def _wire_sphere(center: np.ndarray, radius: float, circles: int = 6) -> np.ndar
     return (np.asarray(center, dtype=float) + radius * unit).T
 
 
+def _level_set_wire(run: RunLog, index: int, j: int, circles: int) -> np.ndarray:
+    """(3, M) wireframe of the ε level set {q̂_j ≤ ε_j} of a full covariance: the unit
+    wireframe's directions u scaled by the exact boundary distance t(u) from the mean
+    (:func:`stt_drake.core.anisotropic.level_set_radii`; the set is star-shaped)."""
+    from stt_drake.core import anisotropic
+
+    unit = _wire_sphere(np.zeros(3), 1.0, circles)
+    finite = np.all(np.isfinite(unit), axis=0)
+    radii = np.full(unit.shape[1], np.nan)
+    radii[finite] = anisotropic.level_set_radii(
+        unit[:, finite].T,
+        run.covariance[index, j],
+        float(run.obstacle_radius[index, j]),
+        float(run.epsilon[index, j]),
+    )
+    return run.mean[index, j][:, None] + radii * unit
+
+
 def _snapshot_cube(run: RunLog, pad: float = 0.06) -> np.ndarray:
     """(3, 2) limits of one cube (equal spans) around the task: the start and target sets,
     the output and the tube over the whole run, padded by `pad` times the largest span
@@ -118,7 +136,8 @@ def plot_snapshots_3d(log: Mapping[str, Any], times: Sequence[float] | None = No
     Each panel shows every obstacle as the sphere B(μ_j, r_o_j) at its mean, coloured by
     σ_j (darker = more uncertain, as in the paper's Fig. of the UAV study) and labelled
     with its index when there are at most :data:`_MANY_OBSTACLES`, with its ε level set
-    {q̂_j ≤ ε_j} as a translucent wireframe sphere in its colour (when bounded and larger
+    {q̂_j ≤ ε_j} as a translucent wireframe sphere in its colour (its exact non-spherical
+    shape with full covariances) (when bounded and larger
     than the obstacle); the tube
     Γ(t) = B(c, r) as a wireframe sphere; the output path y and the centre path so far;
     the start and target sets as wireframe spheres. Panels share one cube of limits around
@@ -161,19 +180,18 @@ def plot_snapshots_3d(log: Mapping[str, Any], times: Sequence[float] | None = No
             )
             # the ε level set {q̂_j ≤ ε_j}, a ball around the mean (drawn when it is
             # bounded and larger than the obstacle)
-            key = (float(run.epsilon[index, j]), float(run.sigma[index, j]))
-            key += (float(run.obstacle_radius[index, j]),)
-            if key not in level_sets:
-                level_sets[key] = level_set_radius(*key, 3)
-            level = level_sets[key]
-            if np.isfinite(level) and level > run.obstacle_radius[index, j]:
-                ax.plot(
-                    *_wire_sphere(mean, level, 3 if many else 4),
-                    color=color,
-                    lw=0.4,
-                    alpha=0.45,
-                    axlim_clip=True,
-                )
+            if run.covariance is not None:  # its exact, non-spherical shape
+                wire = _level_set_wire(run, index, j, 3 if many else 4)
+            else:
+                key = (float(run.epsilon[index, j]), float(run.sigma[index, j]))
+                key += (float(run.obstacle_radius[index, j]),)
+                if key not in level_sets:
+                    level_sets[key] = level_set_radius(*key, 3)
+                level = level_sets[key]
+                bounded = np.isfinite(level) and level > run.obstacle_radius[index, j]
+                wire = _wire_sphere(mean, level, 3 if many else 4) if bounded else None
+            if wire is not None:
+                ax.plot(*wire, color=color, lw=0.4, alpha=0.45, axlim_clip=True)
             if not many:
                 ax.text(*mean, str(j), fontsize=7, ha="center", va="center", axlim_clip=True)
         for center, set_radius, key in (
