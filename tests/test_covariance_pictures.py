@@ -4,6 +4,7 @@ level sets {q̂_j ≤ ε_j} and {q̂_j ≤ p_d_j}."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from matplotlib.contour import QuadContourSet
 
 from stt_drake.core import anisotropic
@@ -61,3 +62,39 @@ def test_3d_level_set_wire_lies_on_the_exact_level_set(run_scenario):
         assert along.max() > 1.5 * across.max()
     axes = plot_snapshots_3d(log).axes
     assert len(axes) >= 3
+
+
+def test_meshcat_replay_draws_ellipsoids_on_the_principal_axes(tmp_path):
+    """uav_anisotropic drawn live (2 s) into a loopback Meshcat: each obstacle node is turned
+    so that its local axis k is Σ_j's k-th eigenvector, and the ε / p_d sets' semi-axes are
+    the level sets' exact extents along those axes (≥ r_o): long along the flight
+    direction, short across."""
+    from test_replay import animation, commands, rotate, short_scenario
+
+    from stt_drake.replay import simulate_live, start_meshcat
+
+    meshcat = start_meshcat()
+    try:
+        result, path = simulate_live(
+            short_scenario("uav_anisotropic", 2.0), tmp_path / "replay.html", meshcat=meshcat
+        )
+    finally:
+        del meshcat
+    html = path.read_text()
+    assert "/stt/obstacles/0/epsilon_set/shape" in {
+        c["path"] for c in commands(html) if c["type"] == "set_object"
+    }
+    _fps, tracks = animation(html)
+    log = RunLog.of(result.log)
+    for j in range(log.count):
+        covariance, r_o = log.covariance[0, j], float(log.obstacle_radius[0, j])
+        _variances, axes = anisotropic.eigen_decomposition(covariance)
+        quaternion = np.asarray(tracks[f"/stt/obstacles/{j}"][".quaternion"][0], dtype=float)
+        for k in range(3):
+            turned = rotate(quaternion, np.eye(3)[k])
+            assert abs(turned @ axes[:, k]) == pytest.approx(1.0, abs=1e-9)
+        for part, level in (("epsilon_set", log.epsilon[0, j]), ("p_d_set", log.p_d[0, j])):
+            scale = np.asarray(tracks[f"/stt/obstacles/{j}/{part}"][".scale"][0], dtype=float)
+            extents = anisotropic.level_set_radii(axes.T, covariance, r_o, level)
+            np.testing.assert_allclose(scale, np.maximum(extents, r_o), rtol=1e-8)
+            assert scale[2] > 1.5 * scale[0]  # λ ascending: axis 2 is the flight direction

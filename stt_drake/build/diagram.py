@@ -300,6 +300,7 @@ def add_live_view(
     plant: PlantHandles,
     tube: OutputPort,
     belief: OutputPort,
+    covariance: OutputPort | None = None,
 ) -> None:
     """Draw the run live into `meshcat`: a :class:`~stt_drake.systems.visualizer.TubeVisualizer`
     (tube, obstacles, their ε and p_d level sets; the robot at y for a plant without a
@@ -318,6 +319,7 @@ def add_live_view(
         len(scenario.obstacles),
         output=plant.output,
         robot_radius=None if radius is None else float(radius),
+        covariance=covariance,
     )
     if plant.scene_graph is not None:
         params = MeshcatVisualizerParams(publish_period=PUBLISH_PERIOD, prefix="/stt/arm")
@@ -378,7 +380,7 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> SttDiag
         loggers[name] = LogVectorOutput(port, builder, scenario.log_period)
         loggers[name].set_name(f"{name}_logger")
     if meshcat is not None:
-        add_live_view(builder, scenario, meshcat, plant, stt.tube, stt.belief)
+        add_live_view(builder, scenario, meshcat, plant, stt.tube, stt.belief, stt.covariance)
     diagram = builder.Build()
     diagram.set_name(scenario.name)
     return SttDiagram(

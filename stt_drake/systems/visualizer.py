@@ -8,8 +8,11 @@ and every `publish_period`, poses geometry it created once in its constructor:
   disc (2D, in the plane z = 0);
 * ``{prefix}/obstacles/{j}`` (posed at the mean) with ``.../body`` — obstacle j's r_o ball;
 * ``{prefix}/obstacles/{j}/epsilon_set`` and ``.../p_d_set`` — the level sets
-  {q̂_j ≤ ε_j} and {q̂_j ≤ p_d_j} (balls around the mean: the belief is isotropic), drawn
-  translucent, at least r_o (an unbounded set is drawn at r_o);
+  {q̂_j ≤ ε_j} and {q̂_j ≤ p_d_j} (balls around the mean for an isotropic belief), drawn
+  translucent, at least r_o (an unbounded set is drawn at r_o); with full covariances
+  (``anisotropic=True``, input ``obstacle_covariance``) ellipsoids (ellipses in 2D): the
+  obstacle node is also turned to Σ_j's principal axes, and each semi-axis is the level
+  set's exact extent along that axis (:func:`stt_drake.core.anisotropic.level_set_radii`);
 * ``{prefix}/robot`` — with a ``output`` port (`robot_radius` given): the robot at y.
 
 Shapes are unit spheres / discs scaled with the ``scale`` property, so a publish only
@@ -27,7 +30,7 @@ from functools import lru_cache
 
 import numpy as np
 from pydrake.geometry import Cylinder, Meshcat, Rgba, Sphere
-from pydrake.math import RigidTransform
+from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import (
     Context,
     DiagramBuilder,
@@ -36,7 +39,8 @@ from pydrake.systems.framework import (
     OutputPort,
 )
 
-from stt_drake.core.belief import ObstacleBelief, belief_size
+from stt_drake.core.anisotropic import eigen_decomposition, level_set_radii
+from stt_drake.core.belief import ObstacleBelief, belief_size, covariance_size
 from stt_drake.core.probability import level_set_radius
 
 #: Default publish period of the live view (s): 30 frames per second.
@@ -80,6 +84,7 @@ class TubeVisualizer(LeafSystem):
         publish_period: float = PUBLISH_PERIOD,
         prefix: str = "/stt",
         robot_radius: float | None = None,
+        anisotropic: bool = False,
     ) -> None:
         super().__init__()
         if dimension not in (2, 3):
@@ -93,6 +98,13 @@ class TubeVisualizer(LeafSystem):
         self._output = None
         if robot_radius is not None:
             self._output = self.DeclareVectorInputPort("output", dimension)
+        self._covariance = (
+            self.DeclareVectorInputPort("obstacle_covariance", covariance_size(count, dimension))
+            if anisotropic
+            else None
+        )
+        # Principal axes and semi-axes by (Σ bytes, r_o, ε, p_d): Σ rarely changes.
+        self._ellipsoids: dict[tuple, tuple[np.ndarray, list[list[float]]]] = {}
         self.DeclareInitializationPublishEvent(self._initialize)
         self.DeclarePeriodicPublishEvent(publish_period, 0.0, self._publish)
         # Last scale sent per path: a recording keeps a scale until it changes.
@@ -120,17 +132,39 @@ class TubeVisualizer(LeafSystem):
             lift = RigidTransform([0.0, 0.0, 0.5 * DISC_THICKNESS * (layer + 1)])
             self._meshcat.SetTransform(f"{path}/shape", lift)
 
-    def _scale(self, radius: float) -> list[float]:
-        radius = max(float(radius), 1e-6)
-        return [radius, radius, radius if self._n == 3 else 1.0]
+    def _scale(self, radius: float | Sequence[float]) -> list[float]:
+        """Meshcat scale of a unit shape: a radius, or n semi-axes (in 2D the disc keeps
+        its thickness)."""
+        radii = np.broadcast_to(np.maximum(np.asarray(radius, dtype=float), 1e-6), (self._n,))
+        return [*map(float, radii), *([] if self._n == 3 else [1.0])]
 
     def _lift(self, point: np.ndarray) -> np.ndarray:
         return np.append(point, 0.0) if self._n == 2 else np.asarray(point, dtype=float)
 
-    def _set_scale(self, path: str, radius: float, t: float) -> None:
-        if self._scales.get(path) != radius:
-            self._scales[path] = radius
-            self._meshcat.SetProperty(path, "scale", self._scale(radius), t)
+    def _set_scale(self, path: str, radius: float | Sequence[float], t: float) -> None:
+        scale = self._scale(radius)
+        if self._scales.get(path) != scale:
+            self._scales[path] = scale
+            self._meshcat.SetProperty(path, "scale", scale, t)
+
+    def _ellipsoid(
+        self, covariance: np.ndarray, r_o: float, levels: Sequence[float]
+    ) -> tuple[np.ndarray, list[list[float]]]:
+        """(R, [semi-axes per level]): R (3×3, det +1) turns the node to Σ's principal
+        axes; the semi-axes are the level sets' extents along them, at least r_o."""
+        key = (covariance.tobytes(), r_o, *levels)
+        if key not in self._ellipsoids:
+            _variances, axes = eigen_decomposition(covariance)
+            if np.linalg.det(axes) < 0.0:
+                axes[:, -1] *= -1.0
+            rotation = np.eye(3)
+            rotation[: self._n, : self._n] = axes
+            semi_axes = []
+            for level in levels:
+                extents = level_set_radii(axes.T, covariance, r_o, float(level))
+                semi_axes.append([max(float(e), r_o) for e in extents])
+            self._ellipsoids[key] = (rotation, semi_axes)
+        return self._ellipsoids[key]
 
     def _initialize(self, context: Context, event: object = None) -> EventStatus:
         self._scales.clear()
@@ -143,13 +177,29 @@ class TubeVisualizer(LeafSystem):
         meshcat.SetTransform(f"{prefix}/tube", RigidTransform(self._lift(tube[:-1])), t)
         self._set_scale(f"{prefix}/tube/ball", float(tube[-1]), t)
         belief = ObstacleBelief.from_vector(self._belief.Eval(context), self._n)
+        n = self._n
+        covariances = (
+            None
+            if self._covariance is None
+            else self._covariance.Eval(context).reshape(self._count, n, n)
+        )
         for j in range(self._count):
             base = f"{prefix}/obstacles/{j}"
-            meshcat.SetTransform(base, RigidTransform(self._lift(belief.mean[j])), t)
             sigma, r_o = float(belief.sigma[j]), float(belief.radius[j])
+            names = ("epsilon_set", "p_d_set")
+            levels = (float(belief.epsilon[j]), float(belief.p_d[j]))
+            if covariances is not None:
+                rotation, semi_axes = self._ellipsoid(covariances[j], r_o, levels)
+                pose = RigidTransform(RotationMatrix(rotation), self._lift(belief.mean[j]))
+                meshcat.SetTransform(base, pose, t)
+                self._set_scale(f"{base}/body", r_o, t)
+                for name, axes in zip(names, semi_axes, strict=True):
+                    self._set_scale(f"{base}/{name}", axes, t)
+                continue
+            meshcat.SetTransform(base, RigidTransform(self._lift(belief.mean[j])), t)
             self._set_scale(f"{base}/body", r_o, t)
-            for name, level in (("epsilon_set", belief.epsilon[j]), ("p_d_set", belief.p_d[j])):
-                d = _level_set_radius(float(level), sigma, r_o, self._n) if sigma > 0 else r_o
+            for name, level in zip(names, levels, strict=True):
+                d = _level_set_radius(level, sigma, r_o, n) if sigma > 0 else r_o
                 self._set_scale(f"{base}/{name}", max(d, r_o) if np.isfinite(d) else r_o, t)
         if self._output is not None:
             y = self._output.Eval(context)
@@ -170,15 +220,27 @@ def AddTubeVisualizer(  # noqa: N802 (Drake's naming of builder functions)
     robot_radius: float | None = None,
     publish_period: float = PUBLISH_PERIOD,
     prefix: str = "/stt",
+    covariance: OutputPort | None = None,
 ) -> TubeVisualizer:
     """Add a :class:`TubeVisualizer` named "tube_visualizer" to `builder`, wired to the
-    `tube` and `belief` ports (and to `output` when `robot_radius` is given)."""
+    `tube` and `belief` ports (to `output` when `robot_radius` is given, and to an
+    `obstacle_covariance` port when `covariance` is given: ellipsoids)."""
     visualizer = builder.AddNamedSystem(
         "tube_visualizer",
-        TubeVisualizer(meshcat, dimension, count, publish_period, prefix, robot_radius),
+        TubeVisualizer(
+            meshcat,
+            dimension,
+            count,
+            publish_period,
+            prefix,
+            robot_radius,
+            anisotropic=covariance is not None,
+        ),
     )
     builder.Connect(tube, visualizer.GetInputPort("tube"))
     builder.Connect(belief, visualizer.GetInputPort("obstacle_belief"))
+    if covariance is not None:
+        builder.Connect(covariance, visualizer.GetInputPort("obstacle_covariance"))
     if robot_radius is not None:
         if output is None:
             raise ValueError("AddTubeVisualizer: robot_radius needs the output port y")
