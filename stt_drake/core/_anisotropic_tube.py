@@ -15,10 +15,9 @@ from numba import njit
 
 from stt_drake.core._anisotropic import avoid_gradient, quantile_radius
 from stt_drake.core._kernels import (
-    _add_null_space,
-    _layer_weight,
-    _recovery_velocity,
-    _saturate,
+    _attraction,
+    _finish_rate,
+    _obstacle_terms,
     ndtr,
     ndtri,
     soft_min_radius,
@@ -127,13 +126,7 @@ def anisotropic_tube_step(
     escape = np.zeros(n)
     share = 0.0
     no_axis = np.empty(0)
-    for i in range(n):
-        e = target[i] - center[i]
-        goal[i] = e
-        if linear_zone > 0.0 and abs(e) < linear_zone:
-            rate[i] = k1 * e * linear_zone ** (-2.0 / 3.0)
-        else:
-            rate[i] = k1 * np.cbrt(e)
+    _attraction(center, target, k1, linear_zone, goal, rate)
     offset = np.empty(n)
     direction = np.empty(n)
     m = np.empty(n)
@@ -179,44 +172,28 @@ def anisotropic_tube_step(
                 direction[i] += axes[i, k] * gradient[k]
             size += direction[i] * direction[i]
         size = math.sqrt(size)
-        if size > 0.0:
-            for i in range(n):
+        for i in range(n):
+            if size > 0.0:
                 direction[i] /= size
-        elif distance > 0.0:
-            for i in range(n):
-                direction[i] = offset[i] / distance
-        else:
-            direction[:] = 0.0
-        th = 1.0 / qj - 1.0 / p_d[j]
-        theta[j] = th
-        if max_speed < math.inf:
-            weight = _layer_weight(qj, eps, p_d[j])
-        else:
-            weight = 1.0 if qj <= eps else 0.0
-        if weight > 0.0:
-            share = max(share, weight)
-            for i in range(n):
-                escape[i] += weight * direction[i]
-        if qj <= eps:
-            theta[j] = 1.0 / eps - 1.0 / p_d[j]
-            continue
-        scale = distance / (qj - eps)  # m_j = ‖c − μ_j‖·∇̂q_j/(q_j − ε_j)
-        for i in range(n):
-            m[i] = scale * direction[i]
-        gain2 = k2[j] if k2.shape[0] > 1 else k2[0]
-        gain3 = k3[j] if k3.shape[0] > 1 else k3[0]
-        for i in range(n):
-            rate[i] += gain2 * th * m[i]
-        if gain3 != 0.0:
-            axis = circulation[j] if circulation.shape[0] == count else no_axis
-            _add_null_space(rate, m, goal, axis, gain3 * th)
-    _saturate(rate, max_speed)
-    if share > 0.0:
-        blended = np.empty(n)
-        _recovery_velocity(blended, escape, goal, max_speed)
-        if share == 1.0:
-            rate[:] = blended
-        else:
-            for i in range(n):
-                rate[i] = (1.0 - share) * rate[i] + share * blended[i]
+            else:  # q stationary (c = μ_j): the isotropic law's direction, or none
+                direction[i] = offset[i] / distance if distance > 0.0 else 0.0
+        axis = circulation[j] if circulation.shape[0] == count else no_axis
+        theta[j], weight = _obstacle_terms(
+            rate,
+            escape,
+            m,
+            direction,
+            distance,
+            qj,
+            eps,
+            p_d[j],
+            k2,
+            k3,
+            j,
+            axis,
+            goal,
+            max_speed,
+        )
+        share = max(share, weight)
+    _finish_rate(rate, share, escape, goal, max_speed)
     return rate, soft_min_radius(d_hat, r_max, nu), q, d_hat, theta

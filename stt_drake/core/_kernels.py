@@ -632,19 +632,14 @@ def tube_step(
     inflated = reach.shape[0] == count
     q = np.empty(count)
     d_hat = np.empty(count)
-    theta = np.empty(count)
+    theta = np.zeros(count)
     goal = np.empty(n)
     rate = np.empty(n)
     escape = np.zeros(n)
     share = 0.0  # the largest boundary-layer weight (tube.boundary_layer_weights)
     no_axis = np.empty(0)
-    for i in range(n):
-        e = target[i] - center[i]
-        goal[i] = e
-        if linear_zone > 0.0 and abs(e) < linear_zone:
-            rate[i] = k1 * e * linear_zone ** (-2.0 / 3.0)
-        else:
-            rate[i] = k1 * np.cbrt(e)
+    _attraction(center, target, k1, linear_zone, goal, rate)
+    unit = np.empty(n)
     m = np.empty(n)
     for j in range(count):
         s = sigma[j]
@@ -664,43 +659,112 @@ def tube_step(
                 d_hat[j] = lower
             else:
                 d_hat[j] = s * chi_isf(eps, a, n) - radius[j]
-        if qj <= p_d[j]:
-            th = 1.0 / qj - 1.0 / p_d[j]
-            theta[j] = th
-            if max_speed < math.inf:
-                weight = _layer_weight(qj, eps, p_d[j])
-            else:  # unbounded: no layer, only the recovery
-                weight = 1.0 if qj <= eps else 0.0
-            if weight > 0.0:
-                share = max(share, weight)
-                if distance > 0.0:
-                    for i in range(n):
-                        escape[i] += weight * (center[i] - mean[j, i]) / distance
-            if qj <= eps:
-                theta[j] = 1.0 / eps - 1.0 / p_d[j]  # unused in recovery: its largest value
-                continue
-            inv_gap = 1.0 / (qj - eps)
+        if qj <= p_d[j]:  # ∇̂q_j = (c − μ_j)/‖c − μ_j‖ for Σ_j = σ_j² I
             for i in range(n):
-                m[i] = (center[i] - mean[j, i]) * inv_gap
-            gain2 = k2[j] if k2.shape[0] > 1 else k2[0]
-            gain3 = k3[j] if k3.shape[0] > 1 else k3[0]
-            for i in range(n):
-                rate[i] += gain2 * th * m[i]
-            if gain3 != 0.0:
-                axis = circulation[j] if circulation.shape[0] == count else no_axis
-                _add_null_space(rate, m, goal, axis, gain3 * th)
+                unit[i] = (center[i] - mean[j, i]) / distance if distance > 0.0 else 0.0
+            axis = circulation[j] if circulation.shape[0] == count else no_axis
+            theta[j], weight = _obstacle_terms(
+                rate,
+                escape,
+                m,
+                unit,
+                distance,
+                qj,
+                eps,
+                p_d[j],
+                k2,
+                k3,
+                j,
+                axis,
+                goal,
+                max_speed,
+            )
+            share = max(share, weight)
+    _finish_rate(rate, share, escape, goal, max_speed)
+    return rate, soft_min_radius(d_hat, r_max, nu), q, d_hat, theta
+
+
+@njit(**_JIT)
+def _attraction(
+    center: np.ndarray,
+    target: np.ndarray,
+    k1: float,
+    linear_zone: float,
+    goal: np.ndarray,
+    rate: np.ndarray,
+) -> None:
+    """goal = η − c and rate = the attraction k1·∛(η − c) of Eq. (4), linear inside the
+    zone |e_i| < linear_zone (the tube laws' first term)."""
+    for i in range(center.shape[0]):
+        e = target[i] - center[i]
+        goal[i] = e
+        if linear_zone > 0.0 and abs(e) < linear_zone:
+            rate[i] = k1 * e * linear_zone ** (-2.0 / 3.0)
         else:
-            theta[j] = 0.0
+            rate[i] = k1 * np.cbrt(e)
+
+
+@njit(**_JIT)
+def _obstacle_terms(
+    rate: np.ndarray,
+    escape: np.ndarray,
+    m: np.ndarray,
+    unit: np.ndarray,
+    distance: float,
+    q: float,
+    epsilon: float,
+    p_d: float,
+    k2: np.ndarray,
+    k3: np.ndarray,
+    j: int,
+    axis: np.ndarray,
+    goal: np.ndarray,
+    max_speed: float,
+) -> tuple[float, float]:
+    """Obstacle j's share of ċ where q_j ≤ p_d_j, with `unit` = ∇̂q_j (c − μ_j normalised
+    for an isotropic belief; zero where undefined): θ_j = 1/q_j − 1/p_d_j; its
+    boundary-layer weight w_j adds w_j·unit to `escape`; above ε_j,
+    m_j = ‖c − μ_j‖·unit/(q_j − ε_j) adds k2·θ_j·m_j + k3·θ_j·v_j (v_j ⟂ m_j) to `rate`
+    (Eq. (4)). Returns (θ_j, w_j); in recovery θ_j is reported at its largest in-law
+    value 1/ε_j − 1/p_d_j."""
+    n = rate.shape[0]
+    if max_speed < math.inf:
+        weight = _layer_weight(q, epsilon, p_d)
+    else:  # unbounded: no layer, only the recovery
+        weight = 1.0 if q <= epsilon else 0.0
+    if weight > 0.0:
+        for i in range(n):
+            escape[i] += weight * unit[i]
+    if q <= epsilon:
+        return 1.0 / epsilon - 1.0 / p_d, weight
+    th = 1.0 / q - 1.0 / p_d
+    scale = distance / (q - epsilon)
+    for i in range(n):
+        m[i] = scale * unit[i]
+    gain2 = k2[j] if k2.shape[0] > 1 else k2[0]
+    gain3 = k3[j] if k3.shape[0] > 1 else k3[0]
+    for i in range(n):
+        rate[i] += gain2 * th * m[i]
+    if gain3 != 0.0:
+        _add_null_space(rate, m, goal, axis, gain3 * th)
+    return th, weight
+
+
+@njit(**_JIT)
+def _finish_rate(
+    rate: np.ndarray, share: float, escape: np.ndarray, goal: np.ndarray, max_speed: float
+) -> None:
+    """Saturate ċ at max_speed, then blend it with the escape velocity by the largest
+    boundary-layer weight `share`: ċ = (1 − w)·ċ_law + w·ċ_escape (tube module docstring)."""
     _saturate(rate, max_speed)
     if share > 0.0:
-        blended = np.empty(n)
+        blended = np.empty(rate.shape[0])
         _recovery_velocity(blended, escape, goal, max_speed)
         if share == 1.0:
             rate[:] = blended
-        else:
-            for i in range(n):
-                rate[i] = (1.0 - share) * rate[i] + share * blended[i]
-    return rate, soft_min_radius(d_hat, r_max, nu), q, d_hat, theta
+            return
+        for i in range(rate.shape[0]):
+            rate[i] = (1.0 - share) * rate[i] + share * blended[i]
 
 
 @njit(**_JIT)
@@ -989,8 +1053,18 @@ def tube_advance(
     end_radius = soft_min_radius(ahead, r_max, nu)
     no_inflation = np.empty(0)
     theta_end = tube_step(
-        position, mean, sigma, radius, epsilon, p_d, k2, k3, no_inflation, no_inflation,
-        circulation, constants,
+        position,
+        mean,
+        sigma,
+        radius,
+        epsilon,
+        p_d,
+        k2,
+        k3,
+        no_inflation,
+        no_inflation,
+        circulation,
+        constants,
     )[4]
     return position, certified, accepted, start_radius, end_radius, theta_end
 

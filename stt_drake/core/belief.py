@@ -12,7 +12,7 @@ On a port the belief of `count` obstacles in dimension n is one vector, obstacle
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
@@ -74,6 +74,18 @@ class ObstacleBelief:
         """Pack into the port layout described in the module docstring."""
         scalars = np.column_stack([self.sigma, self.radius, self.epsilon, self.p_d])
         return np.hstack([self.mean, scalars]).ravel()
+
+    @classmethod
+    def from_ports(
+        cls, vector: np.ndarray, covariance: np.ndarray | None, dimension: int
+    ) -> ObstacleBelief:
+        """:meth:`from_vector`, with the `obstacle_covariance` port's vector (each Σ_j,
+        row-major, obstacle-major; None: isotropic) attached."""
+        belief = cls.from_vector(vector, dimension)
+        if covariance is None:
+            return belief
+        matrices = np.asarray(covariance, dtype=float).reshape(belief.count, dimension, dimension)
+        return replace(belief, covariance=matrices)
 
     @classmethod
     def from_vector(cls, vector: np.ndarray, dimension: int) -> ObstacleBelief:

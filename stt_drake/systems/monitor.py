@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import replace
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -198,12 +197,10 @@ class InvariantMonitor(LeafSystem):
 
     def _belief(self, context: Context) -> ObstacleBelief:
         """The belief in `context`, with the covariances when the port is declared."""
-        belief = ObstacleBelief.from_vector(self._belief_port.Eval(context), self._dimension)
-        if self._covariance_port is None:
-            return belief
-        n = self._dimension
-        covariance = self._covariance_port.Eval(context).reshape(belief.count, n, n)
-        return replace(belief, covariance=covariance)
+        covariance = None if self._covariance_port is None else self._covariance_port.Eval(context)
+        return ObstacleBelief.from_ports(
+            self._belief_port.Eval(context), covariance, self._dimension
+        )
 
     def _calc_output_avoid(self, context: Context, output: BasicVector) -> None:
         output.SetFromVector(self._sample.Eval(context).output_avoid_probability)

@@ -199,12 +199,11 @@ class SpatiotemporalTube(LeafSystem):
         return axes.reshape(self._count, 3)
 
     def _belief(self, context: Context) -> ObstacleBelief:
-        belief = ObstacleBelief.from_vector(self._belief_port.Eval(context), self._dimension)
-        if self._covariance_port is None:
-            return belief
-        n = self._dimension
-        covariance = self._covariance_port.Eval(context).reshape(belief.count, n, n)
-        return replace(belief, covariance=covariance)
+        """The belief in `context`, with the covariances when the port is declared."""
+        covariance = None if self._covariance_port is None else self._covariance_port.Eval(context)
+        return ObstacleBelief.from_ports(
+            self._belief_port.Eval(context), covariance, self._dimension
+        )
 
     def _law_in(self, context: Context) -> TubeLaw:
         """The law with the target in use: ``law.target``, or the `target` input if declared."""
