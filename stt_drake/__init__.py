@@ -3,7 +3,8 @@
 The public API, importable from here (loaded on first use, so ``import stt_drake`` stays
 fast and imports no Drake):
 
-* the math core: :class:`TubeLaw`, :class:`FunnelController`, :class:`ObstacleBelief`;
+* the math core: :class:`TubeLaw`, :class:`FunnelController`, :class:`ObstacleBelief`
+  (what the law reads), :class:`GaussianBelief` (the belief port), :class:`ObstacleTask`;
 * the Drake systems: :class:`ObstacleBeliefSource`, :class:`SpatiotemporalTube`,
   :class:`STTController`, :class:`InvariantMonitor`;
 * building: :func:`AddStt` (the STT loop added to a DiagramBuilder), :func:`build_diagram`
@@ -20,6 +21,8 @@ _PUBLIC = {
     "TubeLaw": "stt_drake.core.tube",
     "FunnelController": "stt_drake.core.control",
     "ObstacleBelief": "stt_drake.core.belief",
+    "GaussianBelief": "stt_drake.core.belief",
+    "ObstacleTask": "stt_drake.core.belief",
     "ObstacleBeliefSource": "stt_drake.systems.belief_source",
     "SpatiotemporalTube": "stt_drake.systems.tube",
     "STTController": "stt_drake.systems.controller",

@@ -16,7 +16,7 @@ from stt_drake.build.diagram import SttDiagram, build_diagram
 from stt_drake.build.feasibility import scenario_warnings
 from stt_drake.config import Scenario
 from stt_drake.core import backend
-from stt_drake.core.belief import ObstacleBelief
+from stt_drake.core.belief import GaussianBelief, ObstacleBelief, ObstacleTask
 from stt_drake.core.circulation import carry_circulation
 from stt_drake.core.control import FunnelController
 from stt_drake.core.invariants import (
@@ -155,10 +155,12 @@ def load_kernels(scenario: Scenario, built: SttDiagram) -> float:
     n = scenario.dimension
     law = built.tube.law  # the law the run uses, built once with the diagram
     vector = scenario.belief_at(0.0).to_vector()
-    belief = ObstacleBelief.from_vector(vector, n)
+    task = ObstacleTask.of(scenario.obstacles)
+    table = task.table()
+    belief = ObstacleBelief.of(GaussianBelief.from_vector(vector, n), task)
     center = np.asarray(scenario.start, dtype=float)
     axes = np.zeros((belief.count, 3)) if n == 3 else None
-    evaluation = law.evaluate_packed(center, vector, circulation=axes)  # the tube's ċ and r
+    evaluation = law.evaluate_packed(center, vector, table, circulation=axes)  # ċ and r
     if scenario.tube.update_rate_hz > 0.0:  # the fixed-rate tube's update
         law.advance(center, belief, 1.0 / scenario.tube.update_rate_hz, None, axes)
         law.switching_gains(center, belief)
@@ -168,7 +170,7 @@ def load_kernels(scenario: Scenario, built: SttDiagram) -> float:
     controller = FunnelController(kappa=[1.0])  # the kernels' types do not depend on stages
     controller.control_from_tube(0.0, center, tube)  # the STT controller
     controller.evaluate(0.0, center, center, float(tube[-1]))  # the arm's stage one
-    evaluate_invariants_packed(center, tube, vector, law.r_min)  # the monitor's margins
+    evaluate_invariants_packed(center, tube, vector, table, law.r_min)  # the monitor's margins
     built.belief_source.belief_vector(0.0)  # the belief port's table
     return time.perf_counter() - start
 

@@ -16,8 +16,13 @@ name                       str (a 0-d array in an npz)
 t                          (T,) seconds
 output                     (T, n) robot output y
 center, radius             (T, n) tube centre c and (T,) tube radius r
-belief                     (T, m·(n+4)) obstacle-major records [mean (n), σ, r_o, ε, p_d]
-                           (:mod:`stt_drake.core.belief`'s port layout, one row a sample)
+belief                     (T, m·(n+n²+1)) slot-major records [mean (n), covariance (n²),
+                           active] (:mod:`stt_drake.core.belief`'s port layout, one row a
+                           sample)
+obstacle_radius, epsilon,  (m,) the task numbers r_o_j, ε_j, p_d_j of each slot
+p_d
+full_covariance            0-d bool: the tube and monitor used each Σ_j exactly (else
+                           σ_j² = λ_max(Σ_j)); optional, False when absent
 avoid_probability          (T, m) q_j(c) = P(‖c − O_j‖ ≥ r_o_j + r_min)
 quantile_distance, theta   (T, m) d̂_j and θ_j of the tube law (the tube's diagnostics)
 recovery                   (T, m) 1 while the tube recovers from obstacle j, else 0
@@ -58,7 +63,14 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from stt_drake.core.belief import ObstacleBelief, obstacle_rate_bounds, record_size
+from stt_drake.core.belief import (
+    GaussianBelief,
+    ObstacleBelief,
+    ObstacleTask,
+    largest_sigma,
+    obstacle_rate_bounds,
+    record_size,
+)
 
 if TYPE_CHECKING:
     from stt_drake.config import Scenario
@@ -110,8 +122,7 @@ class RunLog(Mapping[str, np.ndarray]):
             loggers: the diagram's ``VectorLogSink`` per logged signal: ``output``,
                 ``tube`` ([c, r]), ``belief``, ``diagnostics`` ([q, d̂, θ] per obstacle),
                 ``recovery``, ``control``, ``margins``, ``output_avoid_probability``,
-                ``tube_avoid_probability``, ``obstacle_covariance`` (anisotropic runs only)
-                and the names in `extra_logs`.
+                ``tube_avoid_probability`` and the names in `extra_logs`.
             root_context: the simulator's (root) context the logs live in.
             scenario: the simulated scenario (name, task, tube bounds, obstacle models).
             extra_logs: plant-specific signals, logged as they are.
@@ -124,6 +135,7 @@ class RunLog(Mapping[str, np.ndarray]):
         samples = min(log.num_samples() for log in logs.values())
         data = {name: log.data()[:, :samples].T for name, log in logs.items()}
         mean_speed_bound, sigma_rate_bound = obstacle_rate_bounds(scenario.obstacles)
+        task = ObstacleTask.of(scenario.obstacles)
         n, m = scenario.dimension, len(scenario.obstacles)
         tube = data["tube"]
         diagnostics = data["diagnostics"].reshape(-1, 3, m)
@@ -151,9 +163,10 @@ class RunLog(Mapping[str, np.ndarray]):
             "r_max": np.array(scenario.tube.r_max),
             "mean_speed_bound": mean_speed_bound,
             "sigma_rate_bound": sigma_rate_bound,
+            "obstacle_radius": task.radius,
+            "epsilon": task.epsilon,
+            "p_d": task.p_d,
         }
-        if "obstacle_covariance" in data:  # full covariances Σ_j, row-major, obstacle-major
-            arrays["obstacle_covariance"] = data["obstacle_covariance"].copy()
         for name in extra_logs:
             arrays[name] = data[name].copy()
         arrays.update({name: np.asarray(value) for name, value in (constants or {}).items()})
@@ -280,24 +293,30 @@ class RunLog(Mapping[str, np.ndarray]):
     # ------------------------------------------------------------------ obstacle beliefs
 
     @cached_property
-    def _belief(self) -> ObstacleBelief:
-        """Every logged record, (T·m) obstacles in sample-major order."""
+    def _belief(self) -> GaussianBelief:
+        """Every logged slot record, (T·m) slots in sample-major order."""
         rows = self.rows("belief")
         record = record_size(self.dimension)
         if rows.shape[1] % record:
             raise ValueError(
                 f"belief rows of length {rows.shape[1]} are not a whole number of "
-                f"{record}-long obstacle records for dimension {self.dimension}"
+                f"{record}-long slot records [mean, covariance, active] for dimension "
+                f"{self.dimension}"
             )
-        return ObstacleBelief.from_vector(rows.ravel(), self.dimension)
+        return GaussianBelief.from_vector(rows.ravel(), self.dimension)
 
     @cached_property
     def count(self) -> int:
-        """m, the number of obstacles."""
+        """m, the number of obstacle slots."""
         return self.rows("belief").shape[1] // record_size(self.dimension)
 
     def _per_obstacle(self, values: np.ndarray) -> np.ndarray:
         return values.reshape(self.samples, self.count, *values.shape[1:])
+
+    def _per_sample(self, name: str) -> np.ndarray:
+        """(T, m) view of the task constant `name` ((m,)), repeated for every sample."""
+        values = np.asarray(self[name], dtype=float)
+        return np.broadcast_to(values, (self.samples, values.shape[0]))
 
     @cached_property
     def mean(self) -> np.ndarray:
@@ -305,44 +324,61 @@ class RunLog(Mapping[str, np.ndarray]):
         return self._per_obstacle(self._belief.mean)
 
     @cached_property
+    def belief_covariance(self) -> np.ndarray:
+        """(T, m, n, n) belief covariances Σ_j (m²), whatever law the tube used."""
+        return self._per_obstacle(self._belief.covariance)
+
+    @cached_property
+    def active(self) -> np.ndarray:
+        """(T, m) bool: slot j held a track at sample k."""
+        return self._per_obstacle(self._belief.active)
+
+    @cached_property
     def sigma(self) -> np.ndarray:
-        """(T, m) belief standard deviations σ_j (per axis, m)."""
-        return self._per_obstacle(self._belief.sigma)
+        """(T, m) σ_j = √λ_max(Σ_j), the belief's largest standard deviation (m)."""
+        return largest_sigma(self.belief_covariance)
+
+    @cached_property
+    def full_covariance(self) -> bool:
+        """Whether the tube and monitor used each Σ_j exactly."""
+        return bool(self["full_covariance"]) if "full_covariance" in self else False
 
     @cached_property
     def obstacle_radius(self) -> np.ndarray:
         """(T, m) obstacle radii r_o_j."""
-        return self._per_obstacle(self._belief.radius)
+        return self._per_sample("obstacle_radius")
 
     @cached_property
     def epsilon(self) -> np.ndarray:
         """(T, m) required avoidance probabilities ε_j."""
-        return self._per_obstacle(self._belief.epsilon)
+        return self._per_sample("epsilon")
 
     @cached_property
     def p_d(self) -> np.ndarray:
         """(T, m) separation levels p_d_j of Assumption 3."""
-        return self._per_obstacle(self._belief.p_d)
+        return self._per_sample("p_d")
 
     @cached_property
     def covariance(self) -> np.ndarray | None:
-        """(T, m, n, n) full covariances Σ_j (m²) of an anisotropic run, else None."""
-        if "obstacle_covariance" not in self:
-            return None
-        n = self.dimension
-        return self.rows("obstacle_covariance").reshape(self.samples, self.count, n, n)
+        """(T, m, n, n) full covariances Σ_j (m²) of a run whose tube used them, else None."""
+        return self.belief_covariance if self.full_covariance else None
+
+    @cached_property
+    def task(self) -> ObstacleTask:
+        """r_o, ε, p_d of every slot."""
+        return ObstacleTask(
+            np.asarray(self["obstacle_radius"], dtype=float),
+            np.asarray(self["epsilon"], dtype=float),
+            np.asarray(self["p_d"], dtype=float),
+        )
 
     def belief_at(self, index: int) -> ObstacleBelief:
-        """The belief of all m obstacles at sample `index` (views)."""
-        covariance = self.covariance
-        return ObstacleBelief(
-            mean=self.mean[index],
-            sigma=self.sigma[index],
-            radius=self.obstacle_radius[index],
-            epsilon=self.epsilon[index],
-            p_d=self.p_d[index],
-            covariance=None if covariance is None else covariance[index],
+        """The belief of the slots active at sample `index`, as the tube law read it
+        (:meth:`ObstacleBelief.of`); all m slots in a run without a tracker."""
+        gaussian = GaussianBelief(
+            self.mean[index], self.belief_covariance[index], self.active[index]
         )
+        return ObstacleBelief.of(gaussian, self.task, self.full_covariance)
 
     @cached_property
     def mean_speed_bound(self) -> np.ndarray:

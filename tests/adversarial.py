@@ -90,13 +90,17 @@ def recomputed_margins(log: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     Returns (T,) arrays: `output_in_tube` r − ‖y − c‖ (m), `radius_positive` r (m) and,
     minimised over obstacles, `center_avoid_probability` q_j(c; r_o + r_min) − ε_j,
     `tube_avoid_probability` q_j(c; r_o + r) − ε_j, `output_avoid_probability`
-    q_j(y; r_o) − ε_j. The belief record per obstacle is [μ (n), σ, r_o, ε, p_d].
+    q_j(y; r_o) − ε_j. The belief record per obstacle is [μ (n), Σ (n², row-major), active]
+    (every corpus belief is σ² I and active: checked); r_o and ε are the log's task numbers.
     """
     n = int(log["dimension"])
     samples = len(log["t"])
-    belief = np.asarray(log["belief"], dtype=float).reshape(samples, -1, n + 4)
-    mean, sigma = belief[..., :n], belief[..., n]
-    r_o, epsilon = belief[..., n + 1], belief[..., n + 2]
+    belief = np.asarray(log["belief"], dtype=float).reshape(samples, -1, n + n * n + 1)
+    mean, covariance = belief[..., :n], belief[..., n:-1].reshape(samples, -1, n, n)
+    sigma = np.sqrt(covariance[..., 0, 0])
+    np.testing.assert_array_equal(covariance, covariance[..., :1, :1] * np.eye(n))
+    assert np.all(belief[..., -1] == 1.0)
+    r_o, epsilon = np.asarray(log["obstacle_radius"]), np.asarray(log["epsilon"])
     center = np.asarray(log["center"], dtype=float)[:, None, :]
     output = np.asarray(log["output"], dtype=float)[:, None, :]
     radius = np.asarray(log["radius"], dtype=float)
@@ -118,7 +122,7 @@ def arena_excess(log: dict[str, np.ndarray]) -> float:
     obstacle mean; its size is the box's diagonal. The issue's rule: ≤ 1."""
     n = int(log["dimension"])
     samples = len(log["t"])
-    means = np.asarray(log["belief"], dtype=float).reshape(samples, -1, n + 4)[..., :n]
+    means = np.asarray(log["belief"], dtype=float).reshape(samples, -1, n + n * n + 1)[..., :n]
     points = np.vstack([means.reshape(-1, n), log["start"][None], np.atleast_2d(log["target"])])
     low, high = points.min(axis=0), points.max(axis=0)
     size = float(np.linalg.norm(high - low))

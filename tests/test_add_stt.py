@@ -78,7 +78,7 @@ def test_two_stt_loops_fit_in_one_diagram_and_both_keep_every_guarantee():
                 controller,
                 starts[name],
                 belief=loops["left"].belief,
-                obstacle_count=1,
+                task=loops["left"].task,
                 name=name,
             )
         connect(builder, loops[name], plants[name])
@@ -130,13 +130,13 @@ def test_two_stt_loops_fit_in_one_diagram_and_both_keep_every_guarantee():
         assert np.linalg.norm(y - np.array(targets[name])) < R_MAX, (name, y)
 
 
-def test_add_stt_needs_exactly_one_belief_and_a_count_with_a_port():
+def test_add_stt_needs_exactly_one_belief_and_a_task_with_a_port():
     builder = DiagramBuilder()
     controller = FunnelController(kappa=[4.0], funnels=[])
     with pytest.raises(ValueError, match="exactly one of `obstacles` and `belief`"):
         AddStt(builder, law_to([1.0, 1.0], 1), controller, [0.0, 0.0])
     first = AddStt(builder, law_to([1.0, 1.0], 1), controller, [0.0, 0.0], obstacles=OBSTACLES)
-    with pytest.raises(ValueError, match="obstacle_count"):
+    with pytest.raises(ValueError, match="`task`"):
         AddStt(builder, law_to([1.0, 1.0], 1), controller, [0.0, 0.0], belief=first.belief)
 
 

@@ -261,11 +261,11 @@ def test_fixed_rate_inflation_is_refused_for_covariances():
 
 
 # --------------------------------------------------------------------------------------
-# The Drake systems with the `obstacle_covariance` port
+# The Drake systems with full covariances on the belief port
 # --------------------------------------------------------------------------------------
-def test_tube_and_monitor_systems_read_the_covariance_port():
-    """The tube's ċ and diagnostics are the law's with Σ (not the isotropic sigma it also
-    receives), and the monitor's margins are the exact anisotropic ones."""
+def test_tube_and_monitor_systems_use_the_full_covariance():
+    """With full_covariance the tube's ċ and diagnostics are the law's with Σ (not with the
+    isotropic σ² = λ_max), and the monitor's margins are the exact anisotropic ones."""
     from stt_drake.core.invariants import evaluate_invariants
     from stt_drake.systems.monitor import InvariantMonitor
     from stt_drake.systems.tube import SpatiotemporalTube
@@ -280,10 +280,9 @@ def test_tube_and_monitor_systems_read_the_covariance_port():
         if np.all(evaluation.avoid_probability > belief.epsilon) and np.any(evaluation.theta > 0):
             break
         center = belief.mean[0] + rng.normal(size=2) * 0.6
-    tube = SpatiotemporalTube(law, center, obstacle_count=3, anisotropic=True)
+    tube = SpatiotemporalTube(law, center, belief.task, full_covariance=True)
     context = tube.CreateDefaultContext()
     tube.GetInputPort("obstacle_belief").FixValue(context, belief.to_vector())
-    tube.GetInputPort("obstacle_covariance").FixValue(context, belief.covariance.ravel())
     expected = law.evaluate(center, belief)
     isotropic = law.evaluate(center, replace(belief, covariance=None))
     derivatives = tube.AllocateTimeDerivatives()
@@ -294,13 +293,12 @@ def test_tube_and_monitor_systems_read_the_covariance_port():
     )
     assert np.max(np.abs(expected.center_rate - isotropic.center_rate)) > 1e-3
 
-    monitor = InvariantMonitor(2, 3, law.r_min, anisotropic=True)
+    monitor = InvariantMonitor(2, belief.task, law.r_min, full_covariance=True)
     monitor_context = monitor.CreateDefaultContext()
     tube_value = np.append(center, 0.2)
     output = center + np.array([0.05, -0.02])
     monitor.GetInputPort("tube").FixValue(monitor_context, tube_value)
     monitor.GetInputPort("obstacle_belief").FixValue(monitor_context, belief.to_vector())
-    monitor.GetInputPort("obstacle_covariance").FixValue(monitor_context, belief.covariance.ravel())
     monitor.GetInputPort("output").FixValue(monitor_context, output)
     monitor.GetInputPort("recovery").FixValue(monitor_context, np.zeros(3))
     margins = monitor.GetOutputPort("margins").Eval(monitor_context)
@@ -317,17 +315,19 @@ def test_tube_and_monitor_systems_read_the_covariance_port():
 
 
 def test_fixed_rate_tube_with_covariances_is_refused():
+    from stt_drake.core.belief import ObstacleTask
     from stt_drake.core.fixed_rate import BeliefRateBounds
     from stt_drake.systems.tube import SpatiotemporalTube
 
-    with pytest.raises(ValueError, match="anisotropic: the fixed-rate tube"):
+    task = ObstacleTask(np.full(2, 0.2), np.full(2, 0.9), np.full(2, 0.99))
+    with pytest.raises(ValueError, match="full_covariance: the fixed-rate tube"):
         SpatiotemporalTube(
             make_law(2),
             np.zeros(2),
-            2,
+            task,
             update_period=0.01,
             rate_bounds=BeliefRateBounds.still(2),
-            anisotropic=True,
+            full_covariance=True,
         )
 
 

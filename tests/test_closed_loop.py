@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stt_drake.core.belief import ObstacleBelief
 from stt_drake.core.invariants import HOLDS_TOLERANCE, INVARIANT_NAMES
 from stt_drake.core.probability import avoid_probability, ball_avoid_probability
+from stt_drake.runlog import RunLog
 
 SCENARIOS = [
     "omni_hardware_case1",
@@ -36,11 +36,10 @@ def test_every_guarantee_holds_and_target_is_reached(run_scenario, name):
 def test_logged_run_meets_guarantees_by_independent_recomputation(run_scenario, name):
     """Recompute every guarantee from the raw logs (tube, output, belief) at every sample."""
     log = run_scenario(name).log
-    n = int(log["dimension"])
     r_min = float(log["r_min"])
     tol = HOLDS_TOLERANCE
     for k in range(len(log["t"])):
-        belief = ObstacleBelief.from_vector(log["belief"][k], n)
+        belief = RunLog.of(log).belief_at(k)
         c, r, y = log["center"][k], float(log["radius"][k]), log["output"][k]
         assert np.linalg.norm(y - c) < r, f"y left the tube at t = {log['t'][k]}"
         assert r > 0.0

@@ -248,7 +248,7 @@ def test_tube_step_agrees_between_paths(n, worst):
     ]
     for tube_law in laws:
         compiled = tube_law.evaluate(center, belief)
-        packed = tube_law.evaluate_packed(center, belief.to_vector())
+        packed = tube_law.evaluate_packed(center, belief.to_vector(), belief.task.table())
         with backend.pure_numpy():
             reference = tube_law.evaluate(center, belief)
         assert np.any(compiled.theta > 0.0) or not worst  # the active branch is exercised
@@ -265,9 +265,14 @@ def test_tube_step_agrees_between_paths(n, worst):
             reference.quantile_distance[both_exact] + belief.radius[both_exact],
             rtol=1e-10,
         )
-        for field in ("center_rate", "avoid_probability", "quantile_distance", "theta"):
-            np.testing.assert_array_equal(getattr(packed, field), getattr(compiled, field))
-        assert packed.radius == compiled.radius
+        # The port carries σ² I and the packed kernel reads σ = √λ_max back: one rounding of
+        # σ (relative 1e-16), amplified in ċ by 1/(q − ε) as above.
+        for field in ("avoid_probability", "quantile_distance", "theta"):
+            np.testing.assert_allclose(
+                getattr(packed, field), getattr(compiled, field), rtol=1e-12, atol=1e-15
+            )
+        np.testing.assert_allclose(packed.center_rate, compiled.center_rate, rtol=1e-9, atol=1e-12)
+        assert packed.radius == pytest.approx(compiled.radius, rel=1e-12)
 
 
 def test_tube_step_agrees_between_paths_in_one_dimension():
@@ -292,7 +297,7 @@ def test_invariant_margins_agree_between_paths():
         for radius in [0.25, -0.1]:
             compiled = evaluate_invariants(output, center, radius, belief, 0.1)
             packed = evaluate_invariants_packed(
-                output, np.append(center, radius), belief.to_vector(), 0.1
+                output, np.append(center, radius), belief.to_vector(), belief.task.table(), 0.1
             )
             with backend.pure_numpy():
                 reference = evaluate_invariants(output, center, radius, belief, 0.1)
@@ -302,7 +307,8 @@ def test_invariant_margins_agree_between_paths():
                                        reference.output_avoid_probability, atol=1e-12, rtol=0)
             np.testing.assert_allclose(compiled.tube_avoid_probability,
                                        reference.tube_avoid_probability, atol=1e-12, rtol=0)
-            np.testing.assert_array_equal(packed.margins, compiled.margins)
+            # σ read back as √(σ²): one rounding (see the tube step above)
+            np.testing.assert_allclose(packed.margins, compiled.margins, rtol=0, atol=1e-13)
 
 
 def test_invariant_margins_propagate_nan_like_numpy():
@@ -480,3 +486,65 @@ def test_closed_loop_agrees_between_paths():
     assert compiled[0].shape == reference[0].shape
     np.testing.assert_allclose(compiled[0], reference[0], rtol=0, atol=1e-11)
     np.testing.assert_allclose(compiled[1], reference[1], rtol=0, atol=1e-11)
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_largest_variance_matches_numpy_eigvalsh(n):
+    """The closed-form λ_max of the belief port's covariances (quadratic in 2D, Smith's
+    trigonometric cubic in 3D) against LAPACK's eigvalsh, over random SPD matrices with
+    condition numbers up to 1e6, repeated eigenvalues and diagonal ones."""
+    from stt_drake.core import _kernels
+
+    rng = np.random.default_rng(40 + n)
+    matrices = []
+    for _ in range(400):
+        rotation, _ = np.linalg.qr(rng.normal(size=(n, n)))
+        variances = 10.0 ** rng.uniform(-6, 0, n)
+        matrices.append((rotation * variances) @ rotation.T)
+    matrices.append(np.diag(np.arange(1.0, n + 1.0)))  # diagonal: exact
+    matrices.append(0.3 * np.eye(n))  # σ² I: exact
+    rotation, _ = np.linalg.qr(rng.normal(size=(n, n)))
+    matrices.append((rotation * np.r_[np.full(n - 1, 2.0), 1.0]) @ rotation.T)  # repeated
+    for covariance in matrices:
+        table = np.concatenate([np.zeros(n), covariance.ravel(), [1.0]])[None, :]
+        expected = np.linalg.eigvalsh(covariance)[-1]
+        # λ_max's condition is 1 (Weyl): ~10 roundings of the entries' scale ‖Σ‖ = λ_max
+        assert _kernels.largest_variance(table, 0, n) == pytest.approx(expected, rel=1e-12)
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_inactive_slots_never_reach_the_tube_or_the_monitor(n):
+    """Masked slots: the packed tube step and invariant margins with some slots inactive
+    (their means placed right on the centre, with tiny covariances: they would dominate if
+    read) equal the law on the active slots alone, and the inactive slots read q = 1,
+    d̂ = +∞, θ = 0 and avoidance probability 1 — compiled and numpy paths alike."""
+    from stt_drake.core.belief import GaussianBelief, ObstacleBelief
+
+    law, center, belief = obstacle_field(12, n, worst_case=True, seed=11)
+    gaussian = belief.gaussian()
+    active = np.ones(12, dtype=bool)
+    active[[0, 5, 6, 11]] = False
+    mean = gaussian.mean.copy()
+    mean[~active] = center
+    covariance = gaussian.covariance.copy()
+    covariance[~active] = 1e-6 * np.eye(n)
+    masked = GaussianBelief(mean, covariance, active)
+    subset = ObstacleBelief.of(masked, belief.task)
+    output = center + 0.05
+    tube = np.append(center, 0.2)
+    for numpy_path in (False, True):
+        with backend.pure_numpy(numpy_path):
+            expected = law.evaluate(center, subset)
+            packed = law.evaluate_packed(center, masked.to_vector(), belief.task.table())
+            margins = evaluate_invariants_packed(
+                output, tube, masked.to_vector(), belief.task.table(), 0.1
+            )
+            reference = evaluate_invariants(output, center, 0.2, subset, 0.1)
+        np.testing.assert_allclose(packed.center_rate, expected.center_rate, rtol=1e-12)
+        assert packed.radius == pytest.approx(expected.radius, rel=1e-14)
+        np.testing.assert_array_equal(packed.avoid_probability[active], expected.avoid_probability)
+        np.testing.assert_array_equal(packed.avoid_probability[~active], 1.0)
+        np.testing.assert_array_equal(packed.quantile_distance[~active], np.inf)
+        np.testing.assert_array_equal(packed.theta[~active], 0.0)
+        np.testing.assert_allclose(margins.margins, reference.margins, rtol=0, atol=1e-15)
+        np.testing.assert_array_equal(margins.output_avoid_probability[~active], 1.0)

@@ -23,6 +23,7 @@ from stt_drake.plotting import (
     reach_time,
     save_run_figures,
 )
+from stt_drake.runlog import RunLog
 
 SAMPLES = 50
 R_MIN = 0.1
@@ -113,6 +114,9 @@ def build_log(
         "r_min": np.array(R_MIN),
         "r_max": np.array(TUBE_RADIUS),
         "name": np.array("synthetic"),
+        "obstacle_radius": np.broadcast_to(obstacle_radius, count).astype(float),
+        "epsilon": np.broadcast_to(epsilon, count).astype(float),
+        "p_d": np.broadcast_to(p_d, count).astype(float),
     }
 
 
@@ -132,8 +136,7 @@ def circles(ax) -> list[Circle]:
 
 def output_margins(log) -> np.ndarray:
     """(T, m) q̂_j(y) − ε_j, with ε_j read back from the logged belief."""
-    epsilon = np.array([ObstacleBelief.from_vector(row, 2).epsilon for row in log["belief"]])
-    return log["output_avoid_probability"] - epsilon
+    return log["output_avoid_probability"] - log["epsilon"]
 
 
 def obstacle_margin_panel(fig):
@@ -203,7 +206,7 @@ def test_snapshot_level_set_discs_sit_on_their_probability_levels(log):
     fig = plot_snapshots(log, times=[log["t"][k] for k in picks])
     panels = [ax for ax in fig.axes if ax.get_title().startswith("t = ")]
     for ax, k in zip(panels, picks, strict=True):
-        belief = ObstacleBelief.from_vector(log["belief"][k], 2)
+        belief = RunLog.of(log).belief_at(k)
         assert ax.get_title() == f"t = {log['t'][k]:.1f} s"
         for j in range(belief.count):
             mine = [c for c in circles(ax) if np.allclose(c.center, belief.mean[j])]
@@ -364,7 +367,7 @@ def test_snapshots_3d_draw_tube_paths_and_obstacles_at_each_instant():
                 low, high = getattr(ax, get)()
                 assert low <= point[axis] - radius and point[axis] + radius <= high
         # obstacle labels (0-based) at the means of that instant
-        belief = ObstacleBelief.from_vector(log3["belief"][k], 3)
+        belief = RunLog.of(log3).belief_at(k)
         labels = {text.get_text(): np.array(text.get_position_3d()) for text in ax.texts}
         assert sorted(labels) == ["0", "1", "2"]
         for j in range(belief.count):

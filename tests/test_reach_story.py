@@ -119,20 +119,15 @@ def make_log(
 ) -> dict[str, np.ndarray]:
     """A run log with what the story reads: belief (T, m, 2) means and (T, m) sigmas."""
     samples, count = sigma.shape
-    records = np.concatenate(
-        [
-            mean,
-            sigma[:, :, None],
-            np.full((samples, count, 1), 0.2),
-            np.full((samples, count, 1), epsilon),
-            np.full((samples, count, 1), p_d),
-        ],
-        axis=2,
-    )
+    covariance = (sigma**2)[:, :, None] * np.array([1.0, 0.0, 0.0, 1.0])  # σ² I, row-major
+    records = np.concatenate([mean, covariance, np.ones((samples, count, 1))], axis=2)
     return {
         "t": t,
         "dimension": np.array(2),
         "belief": records.reshape(samples, -1),
+        "obstacle_radius": np.full(count, 0.2),
+        "epsilon": np.full(count, epsilon),
+        "p_d": np.full(count, p_d),
         "mean_speed_bound": np.asarray(mean_speed_bound, dtype=float),
         "sigma_rate_bound": np.asarray(sigma_rate_bound, dtype=float),
         "avoid_probability": np.ones((samples, count)) if q is None else q,

@@ -22,9 +22,9 @@ import pytest
 from conftest import INVARIANT_KEYS
 
 from stt_drake.build import load_scenario
-from stt_drake.core.belief import ObstacleBelief
 from stt_drake.plotting import level_set_radius
 from stt_drake.replay import LOCALHOST, simulate_live, start_meshcat
+from stt_drake.runlog import RunLog
 from stt_drake.systems.visualizer import PUBLISH_PERIOD
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -151,7 +151,7 @@ def test_live_view_records_the_tube_and_the_belief_on_the_loopback(tmp_path, nam
     html = path.read_text()
     check_self_contained(html)
     log = result.log
-    count = len(log["belief"][0]) // (dimension + 4)
+    count = len(log["epsilon"])
     set_objects = {c["path"] for c in commands(html) if c["type"] == "set_object"}
     expected = {"/stt/tube/ball/shape", "/stt/robot/body/shape", "/stt/start", "/stt/target/0"}
     for j in range(count):
@@ -188,7 +188,7 @@ def test_live_view_records_the_tube_and_the_belief_on_the_loopback(tmp_path, nam
     held = np.searchsorted(ball[".scale@frames"], frames[rows], side="right") - 1
     exact = np.isclose(ball[".scale"][held][:, 0], log["radius"][samples], rtol=1e-12)
     assert exact.mean() >= 0.8
-    beliefs = [ObstacleBelief.from_vector(row, dimension) for row in log["belief"]]
+    beliefs = [RunLog.of(log).belief_at(k) for k in range(len(log["t"]))]
     for j in range(count):
         matches(
             tracks[f"/stt/obstacles/{j}"][".position"][rows],

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from stt_drake.build import load_scenario
-from stt_drake.core.belief import ObstacleBelief
+from stt_drake.core.belief import GaussianBelief, ObstacleTask
 from stt_drake.runlog import RunLog
 
 CASE1 = Path(__file__).resolve().parent.parent / "diagrams" / "omni_hardware_case1.yaml"
@@ -49,19 +49,17 @@ def scenario():
     return load_scenario(CASE1)
 
 
-def beliefs(samples: int, count: int, dimension: int) -> list[ObstacleBelief]:
-    """A distinct belief of `count` obstacles per sample (every field differs)."""
+def beliefs(samples: int, count: int, dimension: int) -> list[GaussianBelief]:
+    """A distinct belief of `count` slots per sample (every field differs; some slots
+    inactive)."""
     rng = np.random.default_rng(1)
-    return [
-        ObstacleBelief(
-            mean=rng.normal(size=(count, dimension)),
-            sigma=rng.uniform(0.05, 0.5, count),
-            radius=rng.uniform(0.1, 0.3, count),
-            epsilon=rng.uniform(0.8, 0.99, count),
-            p_d=rng.uniform(0.99, 1.0, count),
-        )
-        for _ in range(samples)
-    ]
+    result = []
+    for _ in range(samples):
+        factor = rng.normal(size=(count, dimension, dimension))
+        covariance = factor @ np.swapaxes(factor, 1, 2) + 0.1 * np.eye(dimension)
+        active = rng.uniform(size=count) < 0.8
+        result.append(GaussianBelief(rng.normal(size=(count, dimension)), covariance, active))
+    return result
 
 
 def signals(scenario, samples: dict[str, int] | None = None) -> dict[str, np.ndarray]:
@@ -71,7 +69,7 @@ def signals(scenario, samples: dict[str, int] | None = None) -> dict[str, np.nda
     widths = {
         "output": n,
         "tube": n + 1,
-        "belief": m * (n + 4),
+        "belief": m * (n + n * n + 1),
         "diagnostics": 3 * m,
         "recovery": m,
         "control": n,
@@ -114,7 +112,14 @@ def test_from_loggers_lays_out_every_signal_samples_first(scenario):
         "output_avoid_probability",
         "tube_avoid_probability",
     ]
-    assert list(log)[-3:] == ["sigma_rate_bound", "wind", "effort_limit"]
+    assert list(log)[-6:] == [
+        "sigma_rate_bound",
+        "obstacle_radius",
+        "epsilon",
+        "p_d",
+        "wind",
+        "effort_limit",
+    ]
     np.testing.assert_array_equal(log["t"], PERIOD * np.arange(6))
     np.testing.assert_array_equal(log["center"], data["tube"][:n].T)
     np.testing.assert_array_equal(log["radius"], data["tube"][n])
@@ -169,29 +174,35 @@ def test_the_belief_table_is_the_port_layout_per_sample(scenario):
     log = from_signals(scenario, data)
     n, m = scenario.dimension, len(scenario.obstacles)
     expected = beliefs(6, m, n)
+    task = ObstacleTask.of(scenario.obstacles)
     assert log.mean.shape == (6, m, n) and log.sigma.shape == (6, m)
+    assert not log.full_covariance and log.covariance is None
     for k, belief in enumerate(expected):
         np.testing.assert_array_equal(log.mean[k], belief.mean)
-        np.testing.assert_array_equal(log.sigma[k], belief.sigma)
-        np.testing.assert_array_equal(log.obstacle_radius[k], belief.radius)
-        np.testing.assert_array_equal(log.epsilon[k], belief.epsilon)
-        np.testing.assert_array_equal(log.p_d[k], belief.p_d)
-        np.testing.assert_array_equal(log.belief_at(k).to_vector(), log["belief"][k])
-        # Record j of row k is [mean (n), σ, r_o, ε, p_d], obstacle-major.
+        np.testing.assert_array_equal(log.belief_covariance[k], belief.covariance)
+        np.testing.assert_array_equal(log.active[k], belief.active)
+        largest = [np.sqrt(np.max(np.linalg.eigvals(c).real)) for c in belief.covariance]
+        np.testing.assert_allclose(log.sigma[k], largest, rtol=1e-12)
+        # the task numbers are the scenario's, the same at every sample
+        np.testing.assert_array_equal(log.obstacle_radius[k], task.radius)
+        np.testing.assert_array_equal(log.epsilon[k], task.epsilon)
+        np.testing.assert_array_equal(log.p_d[k], task.p_d)
+        # belief_at: the active slots as the law reads them
+        law_belief = log.belief_at(k)
+        np.testing.assert_array_equal(law_belief.mean, belief.mean[belief.active])
+        np.testing.assert_array_equal(law_belief.epsilon, task.epsilon[belief.active])
+        # Record j of row k is [mean (n), covariance (n², row-major), active], slot-major.
+        width = n + n * n + 1
         for j in range(m):
-            record = log["belief"][k, j * (n + 4) : (j + 1) * (n + 4)]
+            record = log["belief"][k, j * width : (j + 1) * width]
             np.testing.assert_array_equal(record[:n], log.mean[k, j])
-            assert tuple(record[n:]) == (
-                log.sigma[k, j],
-                log.obstacle_radius[k, j],
-                log.epsilon[k, j],
-                log.p_d[k, j],
-            )
+            np.testing.assert_array_equal(record[n:-1], log.belief_covariance[k, j].ravel())
+            assert record[-1] == float(log.active[k, j])
 
 
 def test_a_belief_row_that_is_no_whole_number_of_records_is_refused():
-    log = RunLog({"t": np.zeros(2), "dimension": np.array(2), "belief": np.zeros((2, 7))})
-    with pytest.raises(ValueError, match="6-long obstacle records"):
+    log = RunLog({"t": np.zeros(2), "dimension": np.array(2), "belief": np.zeros((2, 8))})
+    with pytest.raises(ValueError, match="7-long slot records"):
         _ = log.mean
 
 

@@ -23,7 +23,7 @@ from scipy.stats import ncx2
 from stt_drake.build import parse_scenario
 from stt_drake.build.diagram import build_diagram
 from stt_drake.config import Obstacle
-from stt_drake.core.belief import ObstacleBelief, belief_size
+from stt_drake.core.belief import GaussianBelief, ObstacleBelief, ObstacleTask, belief_size
 from stt_drake.core.control import BoxFunnel, FunnelController
 from stt_drake.core.fixed_rate import BeliefRateBounds
 from stt_drake.core.invariants import INVARIANT_NAMES, InvariantTracker, evaluate_invariants
@@ -93,11 +93,12 @@ def belief_by_hand(t: float) -> np.ndarray:
         mean2 = np.array([1.0 + (t - 1.0), 2.0])
     else:
         mean2 = np.array([3.0, 2.0])
+    # [mean, covariance σ² I (row-major), active] per slot
     return np.concatenate(
         [
-            [*mean0, 0.1, 0.2, 0.9, 0.999],
-            [*mean1, sigma1, 0.3, 0.8, 0.99],
-            [*mean2, 0.07, 0.15, 0.95, 0.9999],
+            [*mean0, 0.1**2, 0.0, 0.0, 0.1**2, 1.0],
+            [*mean1, sigma1**2, 0.0, 0.0, sigma1**2, 1.0],
+            [*mean2, 0.07**2, 0.0, 0.0, 0.07**2, 1.0],
         ]
     )
 
@@ -108,19 +109,15 @@ def test_belief_source_output_matches_motion_models(t):
     context = source.CreateDefaultContext()
     context.SetTime(t)
     port = source.GetOutputPort("obstacle_belief")
-    assert port.size() == 3 * (2 + 4) == belief_size(3, 2)
+    assert port.size() == 3 * (2 + 4 + 1) == belief_size(3, 2)
     assert source.obstacle_count == 3
     value = port.Eval(context)
     expected = belief_by_hand(t)
     np.testing.assert_allclose(value, expected, rtol=0.0, atol=1e-12)
     # The same through the dataclass: to_vector is the layout above.
-    table = expected.reshape(3, 6)
-    belief = ObstacleBelief(
-        mean=table[:, :2],
-        sigma=table[:, 2],
-        radius=table[:, 3],
-        epsilon=table[:, 4],
-        p_d=table[:, 5],
+    table = expected.reshape(3, 7)
+    belief = GaussianBelief(
+        mean=table[:, :2], covariance=table[:, 2:6].reshape(3, 2, 2), active=table[:, 6] > 0.5
     )
     np.testing.assert_allclose(value, belief.to_vector(), rtol=0.0, atol=1e-12)
 
@@ -147,24 +144,28 @@ def test_belief_source_three_dimensional():
     context = source.CreateDefaultContext()
     context.SetTime(2.0)
     port = source.GetOutputPort("obstacle_belief")
-    assert port.size() == 7
+    assert port.size() == 3 + 9 + 1
+    variance = 0.3**2
     np.testing.assert_allclose(
-        port.Eval(context), [-1.0, 2.0, 4.0, 0.3, 0.4, 0.7, 0.95], rtol=0.0, atol=1e-12
+        port.Eval(context),
+        [-1.0, 2.0, 4.0, variance, 0, 0, 0, variance, 0, 0, 0, variance, 1.0],
+        rtol=0.0,
+        atol=1e-12,
     )
 
 
 def test_belief_vector_round_trip_and_wrong_length():
     vector = belief_by_hand(1.3)
-    belief = ObstacleBelief.from_vector(vector, dimension=2)
+    belief = GaussianBelief.from_vector(vector, dimension=2)
     assert belief.count == 3 and belief.dimension == 2
-    np.testing.assert_array_equal(belief.mean, vector.reshape(3, 6)[:, :2])
-    np.testing.assert_array_equal(belief.sigma, vector.reshape(3, 6)[:, 2])
-    np.testing.assert_array_equal(belief.p_d, vector.reshape(3, 6)[:, 5])
+    np.testing.assert_array_equal(belief.mean, vector.reshape(3, 7)[:, :2])
+    np.testing.assert_array_equal(belief.covariance[:, 1, 1], vector.reshape(3, 7)[:, 5])
+    assert belief.active.all()
     np.testing.assert_array_equal(belief.to_vector(), vector)
-    with pytest.raises(ValueError, match="length 17"):
-        ObstacleBelief.from_vector(vector[:-1], dimension=2)
+    with pytest.raises(ValueError, match="length 20"):
+        GaussianBelief.from_vector(vector[:-1], dimension=2)
     with pytest.raises(ValueError, match="dimension 3"):
-        ObstacleBelief.from_vector(vector, dimension=3)  # 18 is not a multiple of 7
+        GaussianBelief.from_vector(vector, dimension=3)  # 21 is not a multiple of 13
 
 
 # --------------------------------------------------------------------------------------
@@ -240,7 +241,7 @@ def tube_context(tube: SpatiotemporalTube, center: np.ndarray, belief: ObstacleB
 def test_tube_continuous_outputs_and_derivatives(center):
     center = np.array(center)
     law = make_law()
-    tube = SpatiotemporalTube(law, np.zeros(2), obstacle_count=2)
+    tube = SpatiotemporalTube(law, np.zeros(2), TUBE_BELIEF.task)
     context = tube_context(tube, center, TUBE_BELIEF)
     assert tube.GetOutputPort("tube").size() == 3
     assert tube.GetOutputPort("diagnostics").size() == 6
@@ -275,7 +276,7 @@ def test_tube_outputs_track_state_and_belief_changes():
     """The cached law evaluation is invalidated by the state and by the belief input, and
     by nothing else: changing the time leaves the outputs unchanged."""
     law = make_law()
-    tube = SpatiotemporalTube(law, np.zeros(2), obstacle_count=2)
+    tube = SpatiotemporalTube(law, np.zeros(2), TUBE_BELIEF.task)
     context = tube_context(tube, np.array([0.5, 0.0]), TUBE_BELIEF)
     tube_port = tube.GetOutputPort("tube")
     first = tube_port.Eval(context).copy()
@@ -313,7 +314,7 @@ def test_tube_in_feedback_loop_has_no_algebraic_loop():
         Obstacle(motion=ConstantVelocity(start=[-4.0, 5.0], velocity=[0.1, 0.0]), sigma=0.2),
     ]
     source = builder.AddSystem(ObstacleBeliefSource(obstacles, 2))
-    tube = builder.AddSystem(SpatiotemporalTube(law, np.zeros(2), 2))
+    tube = builder.AddSystem(SpatiotemporalTube(law, np.zeros(2), ObstacleTask.of(obstacles)))
     controller = builder.AddSystem(STTController(FunnelController(kappa=[2.0]), 2))
     drive = builder.AddSystem(OmniDriveInterface(0.05, 0.2, heading_gain=2.0))
     robot = builder.AddSystem(OmniRobot(0.05, 0.2, np.zeros(2)))
@@ -347,7 +348,7 @@ def test_tube_in_feedback_loop_has_no_algebraic_loop():
 def test_tube_rejects_non_finite_rate():
     """A non-finite ċ (here from a NaN obstacle mean) is a named RuntimeError, not a silent
     NaN state."""
-    tube = SpatiotemporalTube(make_law(), np.zeros(2), obstacle_count=2)
+    tube = SpatiotemporalTube(make_law(), np.zeros(2), TUBE_BELIEF.task)
     broken = make_belief(
         mean=[[np.nan, 0.3], [-4.0, 5.0]],
         sigma=[0.1, 0.2],
@@ -368,7 +369,8 @@ def test_tube_fixed_rate_in_diagram_with_continuous_state():
     law = make_law()
     builder = DiagramBuilder()
     tube = builder.AddSystem(SpatiotemporalTube(
-            law, np.zeros(2), 2, update_period=0.01, rate_bounds=BeliefRateBounds.still(2)
+            law, np.zeros(2), TUBE_BELIEF.task, update_period=0.01,
+            rate_bounds=BeliefRateBounds.still(2),
         )
     )
     belief = builder.AddSystem(ConstantVectorSource(TUBE_BELIEF.to_vector()))
@@ -386,7 +388,7 @@ def test_tube_fixed_rate_five_updates():
     law = make_law()
     start = np.array([0.4, -0.1])
     tube = SpatiotemporalTube(
-        law, start, obstacle_count=2, update_period=0.01, rate_bounds=BeliefRateBounds.still(2)
+        law, start, TUBE_BELIEF.task, update_period=0.01, rate_bounds=BeliefRateBounds.still(2)
     )
     assert tube.update_period == 0.01
     context = tube_context(tube, start, TUBE_BELIEF)
@@ -448,7 +450,7 @@ def run_thin_layer(law, update_period, config: SimulatorConfig | None, duration:
     tube = SpatiotemporalTube(
         law,
         np.zeros(2),
-        obstacle_count=1,
+        THIN_BELIEF.task,
         update_period=update_period,
         rate_bounds=BeliefRateBounds.still(1),
     )
@@ -513,9 +515,9 @@ class RecordingLaw(TubeLaw):
 
     gaps: list[float] = field(default_factory=list)
 
-    def evaluate_packed(self, center, belief_vector, prune=True, circulation=None):
+    def evaluate_packed(self, center, belief_vector, task_table, prune=True, circulation=None):
         self.gaps.append(thin_q_gap(center))
-        return super().evaluate_packed(center, belief_vector, prune, circulation)
+        return super().evaluate_packed(center, belief_vector, task_table, prune, circulation)
 
 
 def test_thin_layer_trap_is_real_for_fixed_step_explicit_integration():
@@ -619,7 +621,7 @@ MONITOR_RADIUS = 0.3
 
 
 def monitor_context(output, belief: ObstacleBelief, center=MONITOR_CENTER, radius=MONITOR_RADIUS):
-    monitor = InvariantMonitor(dimension=2, obstacle_count=belief.count, r_min=0.1)
+    monitor = InvariantMonitor(dimension=2, task=belief.task, r_min=0.1)
     context = monitor.CreateDefaultContext()
     monitor.GetInputPort("tube").FixValue(context, [*center, radius])
     monitor.GetInputPort("obstacle_belief").FixValue(context, belief.to_vector())
@@ -728,7 +730,7 @@ def test_monitor_follows_input_changes():
 def monitor_diagram(y0: np.ndarray, velocity: np.ndarray):
     """Monitor fed by ConstantVectorSources (tube, belief) and y(t) = y0 + velocity·t."""
     builder = DiagramBuilder()
-    monitor = builder.AddSystem(InvariantMonitor(2, FAR_BELIEF.count, r_min=0.1))
+    monitor = builder.AddSystem(InvariantMonitor(2, FAR_BELIEF.task, r_min=0.1))
     tube = builder.AddSystem(ConstantVectorSource([*MONITOR_CENTER, MONITOR_RADIUS]))
     belief = builder.AddSystem(ConstantVectorSource(FAR_BELIEF.to_vector()))
     speed = builder.AddSystem(ConstantVectorSource(velocity))
@@ -932,7 +934,8 @@ LOGGER_NAMES = (
 def scenario_belief_by_hand(t: float) -> np.ndarray:
     mean0 = [1.0, 0.9 - 0.1 * t]
     mean1 = [1.5, -1.0 + 0.2 * np.sin(2.0 * np.pi * 0.25 * t)]
-    return np.array([*mean0, 0.1, 0.15, 0.9, 0.9999, *mean1, 0.15, 0.2, 0.8, 0.999])
+    # [mean, σ² I row-major, active] per slot; r_o, ε, p_d are the tube's, not the port's
+    return np.array([*mean0, 0.01, 0, 0, 0.01, 1.0, *mean1, 0.0225, 0, 0, 0.0225, 1.0])
 
 
 @pytest.mark.parametrize("rate", [0.0, 100.0])
@@ -966,7 +969,7 @@ def test_build_diagram_structure_and_logs(rate):
     root = simulator.get_context()
     logs = {name: sink.FindLog(root) for name, sink in built.loggers.items()}
     expected_times = np.arange(41) * 0.05  # every log_period from 0 to 2 s
-    sizes = {"output": 2, "tube": 3, "belief": 12, "diagnostics": 6, "control": 2, "margins": 5}
+    sizes = {"output": 2, "tube": 3, "belief": 14, "diagnostics": 6, "control": 2, "margins": 5}
     sizes |= {"recovery": 2}
     sizes |= {"output_avoid_probability": 2, "tube_avoid_probability": 2}
     for name, log in logs.items():

@@ -22,10 +22,10 @@ from test_closed_loop import test_tube_stays_in_target_after_reach_time as check
 from stt_drake.build import load_scenario, parse_scenario
 from stt_drake.config import Quadrotor as QuadrotorConfig
 from stt_drake.config import ScenarioError
-from stt_drake.core.belief import ObstacleBelief
 from stt_drake.core.circulation import null_space_direction
 from stt_drake.core.invariants import INVARIANT_NAMES
 from stt_drake.run import RunResult, simulate
+from stt_drake.runlog import RunLog
 from stt_drake.systems.plants.quadrotor import Quadrotor
 
 DIAGRAMS = Path(__file__).resolve().parent.parent / "diagrams"
@@ -250,7 +250,7 @@ def test_v_is_orthogonal_and_continuous_along_the_uav_run(run_scenario):
             if samples.size < 2:
                 continue
             stretches += 1
-            beliefs = [ObstacleBelief.from_vector(log["belief"][k], 3) for k in samples]
+            beliefs = [RunLog.of(log).belief_at(k) for k in samples]
             mean = np.array([b.mean[j] for b in beliefs])
             gap = q[samples, j] - np.array([b.epsilon[j] for b in beliefs])
             m = (log["center"][samples] - mean) / gap[:, None]

@@ -26,6 +26,7 @@ from stt_drake.core.arm import (
     arm_metrics,
     summarize_arm,
 )
+from stt_drake.core.belief import ObstacleTask
 from stt_drake.systems.belief_source import ObstacleBeliefSource
 from stt_drake.systems.monitor import InvariantMonitor
 from stt_drake.systems.plants.franka import (
@@ -300,7 +301,8 @@ def add_live_view(
     plant: PlantHandles,
     tube: OutputPort,
     belief: OutputPort,
-    covariance: OutputPort | None = None,
+    task: ObstacleTask,
+    full_covariance: bool = False,
 ) -> None:
     """Draw the run live into `meshcat`: a :class:`~stt_drake.systems.visualizer.TubeVisualizer`
     (tube, obstacles, their ε and p_d level sets; the robot at y for a plant without a
@@ -316,10 +318,10 @@ def add_live_view(
         tube,
         belief,
         scenario.dimension,
-        len(scenario.obstacles),
+        task,
         output=plant.output,
         robot_radius=None if radius is None else float(radius),
-        covariance=covariance,
+        full_covariance=full_covariance,
     )
     if plant.scene_graph is not None:
         params = MeshcatVisualizerParams(publish_period=PUBLISH_PERIOD, prefix="/stt/arm")
@@ -367,8 +369,6 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> SttDiag
         "output_avoid_probability": monitor.GetOutputPort("output_avoid_probability"),
         "tube_avoid_probability": monitor.GetOutputPort("tube_avoid_probability"),
     }
-    if stt.covariance is not None:  # full covariances: the run log keeps Σ_j(t)
-        logged["obstacle_covariance"] = stt.covariance
     extra = dict(plant.logged)
     if plant.sequencer is not None:
         builder.Connect(stt.tube, plant.sequencer.GetInputPort("tube"))
@@ -380,7 +380,9 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> SttDiag
         loggers[name] = LogVectorOutput(port, builder, scenario.log_period)
         loggers[name].set_name(f"{name}_logger")
     if meshcat is not None:
-        add_live_view(builder, scenario, meshcat, plant, stt.tube, stt.belief, stt.covariance)
+        add_live_view(
+            builder, scenario, meshcat, plant, stt.tube, stt.belief, stt.task, stt.full_covariance
+        )
     diagram = builder.Build()
     diagram.set_name(scenario.name)
     return SttDiagram(
@@ -393,7 +395,7 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> SttDiag
         loggers,
         sequencer=plant.sequencer,
         extra_logs=tuple(extra),
-        log_constants=dict(plant.log_constants),
+        log_constants={**plant.log_constants, "full_covariance": np.array(stt.full_covariance)},
         plant_report=plant.report,
         plant_summary=plant.summary,
         scene_graph=plant.scene_graph,

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder, InputPort, LeafSystem, OutputPort
 
-from stt_drake.core.belief import ObstacleModel
+from stt_drake.core.belief import ObstacleModel, ObstacleTask
 from stt_drake.core.control import FunnelController
 from stt_drake.core.tube import BeliefRateBounds, TubeLaw
 from stt_drake.systems.belief_source import ObstacleBeliefSource
@@ -31,15 +31,16 @@ class SttHandles:
     `belief_source` is None when the belief came in as a port. `plant_state` (the
     controller's input) and `control` (its output) connect to the plant; `output` is the
     monitor's input for the plant output y; `tube` is the tube's [c, r] output and `belief`
-    the belief port the loop reads; `covariance` the `obstacle_covariance` port it reads
-    (None: isotropic beliefs)."""
+    the belief port the loop reads; `task` the obstacles' r_o, ε, p_d per slot, and
+    `full_covariance` whether the tube and monitor use each Σ_j exactly."""
 
     belief_source: ObstacleBeliefSource | None
     tube_system: SpatiotemporalTube
     controller: LeafSystem
     monitor: InvariantMonitor
     belief: OutputPort
-    covariance: OutputPort | None
+    task: ObstacleTask
+    full_covariance: bool
     tube: OutputPort
     plant_state: InputPort
     control: OutputPort
@@ -54,8 +55,8 @@ def AddStt(  # noqa: N802 (Drake's naming of builder functions)
     *,
     obstacles: Sequence[ObstacleModel] | None = None,
     belief: OutputPort | None = None,
-    covariance: OutputPort | None = None,
-    obstacle_count: int | None = None,
+    task: ObstacleTask | None = None,
+    full_covariance: bool | None = None,
     update_period: float | None = None,
     rate_bounds: BeliefRateBounds | None = None,
     target_input: bool = False,
@@ -73,11 +74,11 @@ def AddStt(  # noqa: N802 (Drake's naming of builder functions)
         obstacles: obstacle models (anything with motion, sigma, sigma_schedule, radius,
             epsilon, p_d: a scenario's obstacles); an :class:`ObstacleBeliefSource` is
             added. Give either this or `belief`.
-        belief: an `obstacle_belief` output port already in `builder` (a tracker), with
-            `obstacle_count` obstacles.
-        covariance: with `belief`, an `obstacle_covariance` output port (each Σ_j, m²,
-            row-major) for full covariances; None: isotropic. With `obstacles`, the
-            belief source's own port is used when some obstacle has a full covariance.
+        belief: an `obstacle_belief` output port already in `builder` (a tracker: mean,
+            covariance, active per slot), with `task` (r_o, ε, p_d per slot).
+        full_covariance: the tube and the monitor use each Σ_j exactly (continuous tube
+            only); None: whether some of `obstacles` has a full covariance (False with a
+            `belief` port: σ_j² = λ_max(Σ_j), exact only for isotropic Σ_j).
         update_period: None for the continuous-time tube, else the fixed update period h (s);
             then `rate_bounds` is required (:class:`SpatiotemporalTube`).
         target_input: the tube reads η from an input port `target` (a task sequencer).
@@ -99,28 +100,29 @@ def AddStt(  # noqa: N802 (Drake's naming of builder functions)
             f"{prefix}obstacle_belief_source", ObstacleBeliefSource(obstacles, n)
         )
         belief = source.GetOutputPort("obstacle_belief")
-        covariance = source.GetOutputPort("obstacle_covariance") if source.anisotropic else None
-        obstacle_count = len(obstacles)
-    elif obstacle_count is None:
-        raise ValueError("AddStt: a `belief` port needs its `obstacle_count`")
-    anisotropic = covariance is not None
+        task = ObstacleTask.of(obstacles)
+        if full_covariance is None:
+            full_covariance = source.full_covariance
+    elif task is None:
+        raise ValueError("AddStt: a `belief` port needs the obstacles' `task` (r_o, ε, p_d)")
+    full_covariance = bool(full_covariance)
     tube = builder.AddNamedSystem(
         f"{prefix}spatiotemporal_tube",
         SpatiotemporalTube(
             law,
             start,
-            obstacle_count,
+            task,
             update_period=update_period,
             target_input=target_input,
             rate_bounds=rate_bounds,
-            anisotropic=anisotropic,
+            full_covariance=full_covariance,
         ),
     )
     if isinstance(controller, FunnelController):
         controller = builder.AddNamedSystem(f"{prefix}stt_controller", STTController(controller, n))
     monitor = builder.AddNamedSystem(
         f"{prefix}invariant_monitor",
-        InvariantMonitor(n, obstacle_count, law.r_min, anisotropic=anisotropic),
+        InvariantMonitor(n, task, law.r_min, full_covariance=full_covariance),
     )
     tube_output = tube.GetOutputPort("tube")
     builder.Connect(belief, tube.GetInputPort("obstacle_belief"))
@@ -128,16 +130,14 @@ def AddStt(  # noqa: N802 (Drake's naming of builder functions)
     builder.Connect(tube_output, monitor.GetInputPort("tube"))
     builder.Connect(belief, monitor.GetInputPort("obstacle_belief"))
     builder.Connect(tube.GetOutputPort("recovery"), monitor.GetInputPort("recovery"))
-    if covariance is not None:
-        builder.Connect(covariance, tube.GetInputPort("obstacle_covariance"))
-        builder.Connect(covariance, monitor.GetInputPort("obstacle_covariance"))
     return SttHandles(
         belief_source=source,
         tube_system=tube,
         controller=controller,
         monitor=monitor,
         belief=belief,
-        covariance=covariance,
+        task=task,
+        full_covariance=full_covariance,
         tube=tube_output,
         plant_state=controller.GetInputPort("plant_state"),
         control=controller.GetOutputPort("control"),

@@ -1174,34 +1174,123 @@ def soft_min_radius(d_hat: np.ndarray, r_max: float, nu: float) -> float:
     return smallest - math.log(total) / nu
 
 
+# --------------------------------------------------------------------------- belief port
+@njit(**_JIT)
+def largest_variance(table: np.ndarray, j: int, n: int) -> float:
+    """λ_max of the covariance in row j of a belief port table ([μ (n), Σ (n², row-major),
+    active] per slot; :mod:`stt_drake.core.belief`), in closed form: n = 2 from the
+    characteristic quadratic; n = 3 by the trigonometric solution of the characteristic
+    cubic of a symmetric matrix (Smith 1961, Comm. ACM 4(4):168), exact for a diagonal Σ."""
+    if n == 1:
+        return table[j, 1]
+    if n == 2:
+        a = table[j, 2]
+        b = 0.5 * (table[j, 3] + table[j, 4])
+        d = table[j, 5]
+        return 0.5 * (a + d) + math.hypot(0.5 * (a - d), b)
+    a00, a11, a22 = table[j, 3], table[j, 7], table[j, 11]
+    a01 = 0.5 * (table[j, 4] + table[j, 6])
+    a02 = 0.5 * (table[j, 5] + table[j, 9])
+    a12 = 0.5 * (table[j, 8] + table[j, 10])
+    off = a01 * a01 + a02 * a02 + a12 * a12
+    if off == 0.0:
+        return max(a00, max(a11, a22))
+    mean = (a00 + a11 + a22) / 3.0
+    b00, b11, b22 = a00 - mean, a11 - mean, a22 - mean
+    scale = math.sqrt((b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * off) / 6.0)
+    det = (
+        b00 * (b11 * b22 - a12 * a12)
+        - a01 * (a01 * b22 - a12 * a02)
+        + a02 * (a01 * a12 - b11 * a02)
+    )
+    half_det = min(max(0.5 * det / scale**3, -1.0), 1.0)
+    return mean + 2.0 * scale * math.cos(math.acos(half_det) / 3.0)
+
+
+@njit(**_JIT)
+def active_slots(
+    belief: np.ndarray, task: np.ndarray, n: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The active slots of a belief port vector with their task rows ([r_o, ε, p_d] per
+    slot): (slot indices, μ (k, n), σ = √λ_max(Σ) (k,), task rows (k, 3))."""
+    table = belief.reshape((-1, n + n * n + 1))
+    count = table.shape[0]
+    active = 0
+    for j in range(count):
+        if table[j, n + n * n] > 0.5:
+            active += 1
+    slots = np.empty(active, dtype=np.int64)
+    mean = np.empty((active, n))
+    sigma = np.empty(active)
+    rows = np.empty((active, 3))
+    k = 0
+    for j in range(count):
+        if table[j, n + n * n] > 0.5:
+            slots[k] = j
+            for i in range(n):
+                mean[k, i] = table[j, i]
+            sigma[k] = math.sqrt(largest_variance(table, j, n))
+            for i in range(3):
+                rows[k, i] = task[j, i]
+            k += 1
+    return slots, mean, sigma, rows
+
+
+@njit(**_JIT)
+def _per_slot(values: np.ndarray, slots: np.ndarray) -> np.ndarray:
+    """`values` (one per slot, or a single one) at `slots`."""
+    if values.shape[0] == 1:
+        return values
+    out = np.empty(slots.shape[0])
+    for k in range(slots.shape[0]):
+        out[k] = values[slots[k]]
+    return out
+
+
 @njit(**_JIT)
 def tube_step_packed(
     center: np.ndarray,
     belief: np.ndarray,
+    task: np.ndarray,
     k2: np.ndarray,
     k3: np.ndarray,
-    reach: np.ndarray,
-    spread: np.ndarray,
     circulation: np.ndarray,
     constants: np.ndarray,
 ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`tube_step` on a belief port vector ([μ (n), σ, r_o, ε, p_d] per obstacle)."""
+    """:func:`tube_step` on a belief port vector and the task rows ([r_o, ε, p_d] per slot):
+    the active slots only, σ_j = √λ_max(Σ_j); per slot outputs with q = 1, d̂ = +∞, θ = 0 in
+    the inactive slots (they never reach ċ or r)."""
     n = center.shape[0]
-    table = belief.reshape((-1, n + 4))
-    return tube_step(
+    slots, mean, sigma, rows = active_slots(belief, task, n)
+    count = task.shape[0]
+    axes = circulation
+    if circulation.shape[0] == count and slots.shape[0] < count:
+        axes = np.empty((slots.shape[0], circulation.shape[1]))
+        for k in range(slots.shape[0]):
+            axes[k] = circulation[slots[k]]
+    empty = np.empty(0)
+    rate, radius, q_active, d_active, theta_active = tube_step(
         center,
-        table[:, :n],
-        table[:, n],
-        table[:, n + 1],
-        table[:, n + 2],
-        table[:, n + 3],
-        k2,
-        k3,
-        reach,
-        spread,
-        circulation,
+        mean,
+        sigma,
+        rows[:, 0],
+        rows[:, 1],
+        rows[:, 2],
+        _per_slot(k2, slots),
+        _per_slot(k3, slots),
+        empty,
+        empty,
+        axes,
         constants,
     )
+    q = np.ones(count)
+    d_hat = np.full(count, np.inf)
+    theta = np.zeros(count)
+    for k in range(slots.shape[0]):
+        q[slots[k]] = q_active[k]
+        d_hat[slots[k]] = d_active[k]
+        theta[slots[k]] = theta_active[k]
+    return rate, radius, q, d_hat, theta
 
 
 # --------------------------------------------------------------------------- invariants
@@ -1254,22 +1343,22 @@ def invariant_margins(
 
 @njit(**_JIT)
 def invariant_margins_packed(
-    output: np.ndarray, tube: np.ndarray, belief: np.ndarray, r_min: float
+    output: np.ndarray, tube: np.ndarray, belief: np.ndarray, task: np.ndarray, r_min: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`invariant_margins` on port vectors: tube = [c, r], belief as in
-    :func:`tube_step_packed`."""
+    """:func:`invariant_margins` on port vectors: tube = [c, r], the belief port vector and
+    the task rows as in :func:`tube_step_packed`; the active slots only (the inactive ones:
+    probability 1)."""
     n = output.shape[0]
-    table = belief.reshape((-1, n + 4))
-    return invariant_margins(
-        output,
-        tube[:n],
-        tube[n],
-        table[:, :n],
-        table[:, n],
-        table[:, n + 1],
-        table[:, n + 2],
-        r_min,
+    slots, mean, sigma, rows = active_slots(belief, task, n)
+    margins, output_active, tube_active = invariant_margins(
+        output, tube[:n], tube[n], mean, sigma, rows[:, 0], rows[:, 1], r_min
     )
+    output_q = np.ones(task.shape[0])
+    tube_q = np.ones(task.shape[0])
+    for k in range(slots.shape[0]):
+        output_q[slots[k]] = output_active[k]
+        tube_q[slots[k]] = tube_active[k]
+    return margins, output_q, tube_q
 
 
 @njit(**_JIT)
@@ -1295,7 +1384,7 @@ def belief_table(
     velocity: np.ndarray,
 ) -> np.ndarray:
     """The belief port vector at time t (:class:`stt_drake.systems.belief_source.
-    ObstacleBeliefSource`): a copy of the (m, n + 4) `template`, with the means of the
+    ObstacleBeliefSource`): a copy of the (m, n + n² + 1) `template`, with the means of the
     `oscillating` rows set to center + amplitude·sin(ω t + phase) and those of the `moving`
     rows to start + t·velocity (the arithmetic of :mod:`stt_drake.core.motion`)."""
     table = template.copy()

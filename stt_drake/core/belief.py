@@ -5,54 +5,139 @@ O_j ~ N(mean_j, Σ_j) with a full covariance Σ_j (:func:`obstacle_covariance`).
 Each obstacle also carries its own task numbers: the minimum avoidance probability
 epsilon_j (Definition 2.3) and the separation level p_d_j of Assumption 3.
 
-On a port the belief of `count` obstacles in dimension n is one vector, obstacle-major:
-``[mean (n), sigma, radius, epsilon, p_d]`` for obstacle 0, then obstacle 1, ...
+The belief is what a tracker knows; the task numbers are the tube's.
+On the `obstacle_belief` port the belief of `count` obstacle slots in dimension n is one
+vector, slot-major: ``[mean (n), covariance (n², row-major), active]`` for slot 0, then
+slot 1, ... (:class:`GaussianBelief`); active is 1.0 for a slot holding a track, else 0.0.
+The task numbers r_o, ε, p_d of each slot are parameters (:class:`ObstacleTask`).
+The tube law reads both at once as an :class:`ObstacleBelief`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
 from stt_drake.core.motion import CovarianceSchedule, Motion, MotionTable, SigmaSchedule
 
-#: Number of scalars after the mean in one obstacle's record: sigma, radius, epsilon, p_d.
-_SCALAR_FIELDS = 4
-
 
 def record_size(dimension: int) -> int:
-    """Length of one obstacle's record in the belief vector: mean (n) + 4 scalars."""
-    return dimension + _SCALAR_FIELDS
+    """Length of one obstacle slot's record on the belief port: mean (n), covariance (n²),
+    active (1)."""
+    return dimension + dimension * dimension + 1
 
 
 def belief_size(count: int, dimension: int) -> int:
-    """Length of the belief vector for `count` obstacles in R^dimension."""
+    """Length of the belief port vector for `count` obstacle slots in R^dimension."""
     return count * record_size(dimension)
 
 
-def covariance_size(count: int, dimension: int) -> int:
-    """Length of the `obstacle_covariance` port vector: each Σ_j row-major, obstacle-major."""
-    return count * dimension * dimension
+@dataclass(frozen=True)
+class GaussianBelief:
+    """What a tracker knows of every obstacle slot at one instant: the `obstacle_belief`
+    port's value (layout in the module docstring).
+
+    Attributes:
+        mean: (m, n) mean of each obstacle centre, metres.
+        covariance: (m, n, n) covariance Σ_j of each centre, m² (symmetric positive
+            definite in an active slot).
+        active: (m,) bool, whether slot j holds a track; an inactive slot's mean and
+            covariance mean nothing and never reach the tube.
+    """
+
+    mean: np.ndarray
+    covariance: np.ndarray
+    active: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return self.mean.shape[0]
+
+    @property
+    def dimension(self) -> int:
+        return self.mean.shape[1]
+
+    def to_vector(self) -> np.ndarray:
+        """Pack into the port layout of the module docstring."""
+        count, n = self.mean.shape
+        table = np.empty((count, record_size(n)))
+        table[:, :n] = self.mean
+        table[:, n:-1] = np.reshape(self.covariance, (count, n * n))
+        table[:, -1] = np.asarray(self.active, dtype=float)
+        return table.reshape(-1)
+
+    @classmethod
+    def from_vector(cls, vector: np.ndarray, dimension: int) -> GaussianBelief:
+        """Unpack a port vector (mean and covariance are views of it)."""
+        n = dimension
+        vector = np.asarray(vector, dtype=float)
+        if vector.size % record_size(n):
+            raise ValueError(
+                f"obstacle_belief: a vector of length {vector.size} is not a whole number of "
+                f"{record_size(n)}-long slot records [mean ({n}), covariance ({n * n}), "
+                f"active] for dimension {n}"
+            )
+        table = vector.reshape(-1, record_size(n))
+        return cls(
+            mean=table[:, :n],
+            covariance=table[:, n:-1].reshape(-1, n, n),
+            active=table[:, -1] > 0.5,
+        )
+
+
+@dataclass(frozen=True)
+class ObstacleTask:
+    """The task numbers of every obstacle slot (arrays over slots j): parameters of the
+    tube, not of the belief (a tracker does not know them).
+
+    Attributes:
+        radius: (m,) obstacle radius r_o, metres.
+        epsilon: (m,) required avoidance probability ε_j (Definition 2.3), in (0, 1].
+        p_d: (m,) separation probability of Assumption 3, in (ε_j, 1].
+    """
+
+    radius: np.ndarray
+    epsilon: np.ndarray
+    p_d: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return self.radius.shape[0]
+
+    def table(self) -> np.ndarray:
+        """(m, 3) rows [r_o, ε, p_d] per slot: the compiled kernels' layout."""
+        return np.column_stack([self.radius, self.epsilon, self.p_d]).astype(float)
+
+    @classmethod
+    def of(cls, obstacles: Sequence[ObstacleModel]) -> ObstacleTask:
+        """The task numbers of scenario obstacles, one slot each, in order."""
+        return cls(
+            radius=np.array([o.radius for o in obstacles], dtype=float),
+            epsilon=np.array([o.epsilon for o in obstacles], dtype=float),
+            p_d=np.array([o.p_d for o in obstacles], dtype=float),
+        )
 
 
 @dataclass(frozen=True)
 class ObstacleBelief:
-    """Belief over all obstacles at one instant (arrays over obstacles j).
+    """What the tube law reads for every obstacle it acts on at one instant (arrays over
+    obstacles j): the belief of the active slots with their task numbers
+    (:meth:`of`).
 
     Attributes:
         mean: (m, n) mean of each obstacle centre, metres.
-        sigma: (m,) standard deviation of each centre per axis, metres (not a variance).
+        sigma: (m,) standard deviation of each centre per axis, metres (not a variance):
+            σ_j² = λ_max(Σ_j), the largest eigenvalue of the covariance (exactly σ_j
+            for Σ_j = σ_j² I; see :func:`largest_sigma` for other Σ_j).
         radius: (m,) obstacle radius r_o, metres.
         epsilon: (m,) required avoidance probability, in (0, 1].
         p_d: (m,) separation probability of Assumption 3, in (epsilon, 1].
         covariance: (m, n, n) full covariance Σ_j of each centre (m², symmetric positive
-            definite), or None: Σ_j = sigma_j² I. When given, `sigma` holds √λ_max(Σ_j)
-            (the largest standard deviation) and the tube law uses Σ_j exactly
-            (:mod:`stt_drake.core.anisotropic_tube`). Not part of the belief port's record:
-            the covariances travel on a port of their own (:func:`covariance_size`).
+            definite), or None: the law uses σ_j² I (:mod:`stt_drake.core.tube`); given,
+            the law uses Σ_j exactly (:mod:`stt_drake.core.anisotropic_tube`).
     """
 
     mean: np.ndarray
@@ -70,40 +155,43 @@ class ObstacleBelief:
     def dimension(self) -> int:
         return self.mean.shape[1]
 
-    def to_vector(self) -> np.ndarray:
-        """Pack into the port layout described in the module docstring."""
-        scalars = np.column_stack([self.sigma, self.radius, self.epsilon, self.p_d])
-        return np.hstack([self.mean, scalars]).ravel()
+    @property
+    def task(self) -> ObstacleTask:
+        """The task numbers r_o, ε, p_d of these obstacles."""
+        return ObstacleTask(radius=self.radius, epsilon=self.epsilon, p_d=self.p_d)
 
-    @classmethod
-    def from_ports(
-        cls, vector: np.ndarray, covariance: np.ndarray | None, dimension: int
-    ) -> ObstacleBelief:
-        """:meth:`from_vector`, with the `obstacle_covariance` port's vector (each Σ_j,
-        row-major, obstacle-major; None: isotropic) attached."""
-        belief = cls.from_vector(vector, dimension)
+    def gaussian(self) -> GaussianBelief:
+        """The belief as a tracker would give it: Σ_j (σ_j² I without `covariance`), every
+        slot active."""
+        covariance = self.covariance
         if covariance is None:
-            return belief
-        matrices = np.asarray(covariance, dtype=float).reshape(belief.count, dimension, dimension)
-        return replace(belief, covariance=matrices)
+            covariance = self.sigma[:, None, None] ** 2 * np.eye(self.dimension)
+        return GaussianBelief(self.mean, covariance, np.ones(self.count, dtype=bool))
+
+    def to_vector(self) -> np.ndarray:
+        """The `obstacle_belief` port value of this belief (:meth:`gaussian`)."""
+        return self.gaussian().to_vector()
 
     @classmethod
-    def from_vector(cls, vector: np.ndarray, dimension: int) -> ObstacleBelief:
-        """Unpack a port vector (views, no copies)."""
-        record = record_size(dimension)
-        vector = np.asarray(vector, dtype=float)
-        if vector.size % record:
+    def of(
+        cls, belief: GaussianBelief, task: ObstacleTask, full_covariance: bool = False
+    ) -> ObstacleBelief:
+        """The active slots of `belief` with their task numbers, in slot order; σ_j =
+        √λ_max(Σ_j), and Σ_j kept when `full_covariance`."""
+        if task.count != belief.count:
             raise ValueError(
-                f"belief vector of length {vector.size} is not a whole number of "
-                f"{record}-long obstacle records for dimension {dimension}"
+                f"obstacle_belief: {belief.count} slots on the port but {task.count} "
+                "obstacles' task numbers (radius, epsilon, p_d)"
             )
-        table = vector.reshape(-1, record)
+        active = np.flatnonzero(belief.active)
+        covariance = belief.covariance[active]
         return cls(
-            mean=table[:, :dimension],
-            sigma=table[:, dimension],
-            radius=table[:, dimension + 1],
-            epsilon=table[:, dimension + 2],
-            p_d=table[:, dimension + 3],
+            mean=belief.mean[active],
+            sigma=largest_sigma(covariance),
+            radius=task.radius[active],
+            epsilon=task.epsilon[active],
+            p_d=task.p_d[active],
+            covariance=covariance if full_covariance else None,
         )
 
 
@@ -232,9 +320,23 @@ def obstacle_belief(obstacles: Sequence[ObstacleModel], dimension: int, t: float
     )
 
 
-def largest_sigma(covariance: np.ndarray) -> float:
-    """√λ_max(Σ): the largest standard deviation (m) of a covariance (m²)."""
-    return float(np.sqrt(np.linalg.eigvalsh(np.asarray(covariance, dtype=float))[-1]))
+def largest_sigma(covariance: np.ndarray) -> np.ndarray | float:
+    """√λ_max(Σ): the largest standard deviation (m) of a covariance (m²), or of each of a
+    stack (..., n, n) of them.
+
+    The isotropic tube law reads N(μ, Σ) as N(μ, λ_max(Σ) I). That is exact for
+    Σ = σ² I (a scripted σ, or a tracker whose noise models are isotropic: its position
+    covariance stays σ² I). For any other Σ it is NOT conservative everywhere: inflating a
+    Gaussian moves mass away from its mean, so at points near μ the probability of
+    hitting the obstacle falls (O_λ = O_Σ + W, W ~ N(0, λI − Σ), smooths the ball
+    probability; Anderson's inequality bounds it by its value at μ, not at x). It is
+    conservative only far out in the tails. So a belief that may carry a full Σ is run with
+    the exact law (``full_covariance``, :mod:`stt_drake.core.anisotropic_tube`) and checked
+    with the exact probabilities (:mod:`stt_drake.core.invariants`); the λ_max reading
+    remains only where it is exact."""
+    values = np.linalg.eigvalsh(np.asarray(covariance, dtype=float))[..., -1]
+    root = np.sqrt(values)
+    return float(root) if root.ndim == 0 else root
 
 
 def obstacle_rate_bounds(obstacles: Sequence[ObstacleModel]) -> tuple[np.ndarray, np.ndarray]:

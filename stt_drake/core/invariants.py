@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stt_drake.core import anisotropic, backend
-from stt_drake.core.belief import ObstacleBelief, record_size
+from stt_drake.core.belief import GaussianBelief, ObstacleBelief, ObstacleTask, record_size
 from stt_drake.core.probability import avoid_probability
 
 INVARIANT_NAMES = (
@@ -136,31 +136,64 @@ def _anisotropic_probabilities(
         at_output = ((output - belief.mean[j]) @ axes)[None, :]
         r_o = float(belief.radius[j])
         center_q[j] = anisotropic.ball_probabilities(variances, at_center, r_o + r_min)[1][0]
-        tube_q[j] = anisotropic.ball_probabilities(variances, at_center, r_o + max(radius, 0.0))[
-            1
-        ][0]
+        tube_q[j] = anisotropic.ball_probabilities(variances, at_center, r_o + max(radius, 0.0))[1][
+            0
+        ]
         output_q[j] = anisotropic.ball_probabilities(variances, at_output, r_o)[1][0]
     return center_q, tube_q, output_q
 
 
 def evaluate_invariants_packed(
-    output: np.ndarray, tube: np.ndarray, belief_vector: np.ndarray, r_min: float
+    output: np.ndarray,
+    tube: np.ndarray,
+    belief_vector: np.ndarray,
+    task_table: np.ndarray,
+    r_min: float,
 ) -> InvariantSample:
-    """:func:`evaluate_invariants` on port vectors: `tube` = [c, r] and the belief vector
-    (layout of :mod:`stt_drake.core.belief`) — one compiled call, no ObstacleBelief built (the
-    monitor's hot path)."""
+    """:func:`evaluate_invariants` on port vectors: `tube` = [c, r], the belief port vector
+    (layout of :mod:`stt_drake.core.belief`) and the task rows
+    (:meth:`~stt_drake.core.belief.ObstacleTask.table`), σ_j = √λ_max(Σ_j) — one compiled
+    call, no ObstacleBelief built (the monitor's hot path). Per-slot probabilities; an
+    inactive slot reads 1 and takes no part in the margins."""
     output = np.asarray(output, dtype=float)
     dimension = output.shape[0]
     kernel = backend.compiled("invariant_margins_packed", dimension)
     # A malformed belief vector takes the numpy path: from_vector names the problem.
     if kernel is None or len(belief_vector) % record_size(dimension):
-        belief = ObstacleBelief.from_vector(belief_vector, dimension)
-        return evaluate_invariants(output, tube[:-1], tube[-1], belief, r_min)
+        belief = GaussianBelief.from_vector(belief_vector, dimension)
+        task = ObstacleTask(*np.asarray(task_table, dtype=float).T)
+        return evaluate_invariants_slots(output, tube, belief, task, False, r_min)
     return InvariantSample(
         *kernel(
-            output, np.asarray(tube, dtype=float), np.asarray(belief_vector, dtype=float), r_min
+            output,
+            np.asarray(tube, dtype=float),
+            np.asarray(belief_vector, dtype=float),
+            task_table,
+            r_min,
         )
     )
+
+
+def evaluate_invariants_slots(
+    output: np.ndarray,
+    tube: np.ndarray,
+    belief: GaussianBelief,
+    task: ObstacleTask,
+    full_covariance: bool,
+    r_min: float,
+) -> InvariantSample:
+    """:func:`evaluate_invariants` on the active slots of `belief` (Σ_j exactly when
+    `full_covariance`), probabilities per slot as in :func:`evaluate_invariants_packed`."""
+    tube = np.asarray(tube, dtype=float)
+    sample = evaluate_invariants(
+        output, tube[:-1], float(tube[-1]), ObstacleBelief.of(belief, task, full_covariance), r_min
+    )
+    if belief.active.all():
+        return sample
+    slots = np.flatnonzero(belief.active)
+    output_q, tube_q = np.ones(belief.count), np.ones(belief.count)
+    output_q[slots], tube_q[slots] = sample.output_avoid_probability, sample.tube_avoid_probability
+    return InvariantSample(sample.margins, output_q, tube_q)
 
 
 @dataclass

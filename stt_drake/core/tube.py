@@ -49,14 +49,14 @@ update it describes.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
 
 from stt_drake.core import backend
 from stt_drake.core.anisotropic_tube import obstacle_terms
-from stt_drake.core.belief import ObstacleBelief, record_size
+from stt_drake.core.belief import GaussianBelief, ObstacleBelief, ObstacleTask, record_size
 from stt_drake.core.circulation import null_space_direction
 from stt_drake.core.fixed_rate import BeliefRateBounds, FixedRateUpdate, end_radius_bound
 from stt_drake.core.probability import (
@@ -162,6 +162,19 @@ class TubeEvaluation:
     avoid_probability: np.ndarray
     quantile_distance: np.ndarray
     theta: np.ndarray
+
+    def in_slots(self, slots: np.ndarray, count: int) -> TubeEvaluation:
+        """This evaluation of the obstacles in `slots` (slot indices, in order) spread over
+        `count` slots; the others read q = 1, d̂ = +∞, θ = 0 (no obstacle there)."""
+        if len(slots) == count:
+            return self
+        q, d_hat, theta = np.ones(count), np.full(count, np.inf), np.zeros(count)
+        q[slots], d_hat[slots], theta[slots] = (
+            self.avoid_probability,
+            self.quantile_distance,
+            self.theta,
+        )
+        return replace(self, avoid_probability=q, quantile_distance=d_hat, theta=theta)
 
 
 @dataclass(frozen=True)
@@ -349,33 +362,55 @@ class TubeLaw:
         self,
         center: np.ndarray,
         belief_vector: np.ndarray,
+        task_table: np.ndarray,
         prune: bool = True,
         circulation: np.ndarray | None = None,
     ) -> TubeEvaluation:
-        """:meth:`evaluate` on a belief port vector (layout of :mod:`stt_drake.core.belief`),
-        without building the :class:`ObstacleBelief` (the Drake system's hot path)."""
+        """:meth:`evaluate` on a belief port vector (layout of :mod:`stt_drake.core.belief`)
+        and the task rows (:meth:`ObstacleTask.table`), with σ_j = √λ_max(Σ_j), in one
+        compiled call (the Drake system's hot path). The outputs are per slot; an inactive
+        slot never reaches ċ or r and reads q = 1, d̂ = +∞, θ = 0."""
         dimension = len(center)
         mode = "pruned" if prune else "exact"
         kernel = backend.compiled("tube_step_packed", dimension)
         # A malformed belief vector takes the numpy path: from_vector names the problem.
         if kernel is None or len(belief_vector) % record_size(dimension):
-            belief = ObstacleBelief.from_vector(belief_vector, dimension)
-            return self._evaluate_numpy(center, belief, mode, circulation, None)
-        count = len(belief_vector) // record_size(dimension)
+            task = ObstacleTask(*np.asarray(task_table, dtype=float).T)
+            belief = GaussianBelief.from_vector(belief_vector, dimension)
+            return self.evaluate_slots(center, belief, task, False, prune, circulation)
+        count = len(task_table)
         k2, k3, constants = self._gains_for(count)
-        reach, spread, axes = _kernel_extras((count, dimension), circulation, None)
+        _reach, _spread, axes = _kernel_extras((count, dimension), circulation, None)
         return TubeEvaluation(
             *kernel(
                 np.asarray(center, dtype=float),
                 np.asarray(belief_vector, dtype=float),
+                task_table,
                 k2,
                 k3,
-                reach,
-                spread,
                 axes,
                 constants[mode],
             )
         )
+
+    def evaluate_slots(
+        self,
+        center: np.ndarray,
+        belief: GaussianBelief,
+        task: ObstacleTask,
+        full_covariance: bool,
+        prune: bool = True,
+        circulation: np.ndarray | None = None,
+    ) -> TubeEvaluation:
+        """:meth:`evaluate` on the active slots of `belief` (:meth:`ObstacleBelief.of`;
+        Σ_j exactly when `full_covariance`), outputs per slot as in
+        :meth:`evaluate_packed`."""
+        law_belief = ObstacleBelief.of(belief, task, full_covariance)
+        slots = np.flatnonzero(belief.active)
+        if circulation is not None:
+            circulation = np.asarray(circulation).reshape(belief.count, -1)[slots]
+        evaluation = self.evaluate(center, law_belief, prune, circulation)
+        return evaluation.in_slots(slots, belief.count)
 
     def _evaluate_numpy(
         self,
@@ -449,9 +484,7 @@ class TubeLaw:
             layer = violated * 1.0
         share = float(np.max(layer, initial=0.0))
         if share > 0.0:
-            escape = self._recovery_velocity(
-                unit[layer > 0.0], goal_direction, layer[layer > 0.0]
-            )
+            escape = self._recovery_velocity(unit[layer > 0.0], goal_direction, layer[layer > 0.0])
             rate = escape if share == 1.0 else (1.0 - share) * rate + share * escape
         return TubeEvaluation(
             center_rate=rate,
@@ -541,9 +574,7 @@ class TubeLaw:
                 float(radius),
                 max_attempts,
             )
-            return FixedRateUpdate(
-                position, certified, accepted, start_radius, end_radius, theta
-            )
+            return FixedRateUpdate(position, certified, accepted, start_radius, end_radius, theta)
         look_ahead = bounds.inflation(belief.sigma, 2.0 * duration)
         position, evaluation = (
             center,

@@ -11,7 +11,6 @@ from stt_drake.core import backend
 from stt_drake.core.belief import (
     ObstacleModel,
     belief_size,
-    covariance_size,
     obstacle_belief,
     obstacle_covariance,
     obstacle_sigma,
@@ -21,18 +20,18 @@ from stt_drake.core.motion import MotionTable
 
 
 class ObstacleBeliefSource(LeafSystem):
-    """Outputs `obstacle_belief`: [mean, sigma, radius, epsilon, p_d] per obstacle
-    (layout in :mod:`stt_drake.core.belief`), from each obstacle's motion model and σ schedule;
-    when some obstacle has a full covariance, also `obstacle_covariance` (each Σ_j(t), m²;
-    sigma then holds √λ_max(Σ_j)).
+    """Outputs `obstacle_belief`: [mean (n), covariance (n²), active] per obstacle (layout in
+    :mod:`stt_drake.core.belief`), from each obstacle's motion model and uncertainty (σ_j(t)² I,
+    or a full Σ_j(t)); every slot active.
 
     Stands in for a tracker or SLAM front end; a user with a real one replaces this system
-    by anything that writes the same port.
+    by anything that writes the same port (:class:`stt_drake.systems.perception.ObstacleTracker`
+    is one). The task numbers r_o, ε, p_d are not on the port: they are the tube's.
 
     The obstacles are read once, at construction: the constant fields are packed into a
     template and the motion models into a :class:`stt_drake.core.motion.MotionTable`
-    (oscillating and constant-velocity means in one expression per kind); σ schedules are
-    evaluated per obstacle.
+    (oscillating and constant-velocity means in one expression per kind); σ and Σ schedules
+    are evaluated per obstacle.
     """
 
     def __init__(self, obstacles: Sequence[ObstacleModel], dimension: int) -> None:
@@ -42,7 +41,8 @@ class ObstacleBeliefSource(LeafSystem):
         count = len(self._obstacles)
         belief = obstacle_belief(self._obstacles, dimension, 0.0)
         self._template = belief.to_vector().reshape(count, record_size(dimension))
-
+        #: Whether some obstacle has a full covariance (not σ² I).
+        self.full_covariance = belief.covariance is not None
         self._motions = MotionTable([o.motion for o in self._obstacles], dimension)
         self._scheduled = [
             j
@@ -55,24 +55,6 @@ class ObstacleBeliefSource(LeafSystem):
             self._calc_belief,
             prerequisites_of_calc={self.time_ticket()},
         )
-        #: Σ_j at t = 0 (m, n, n) when some obstacle has a full covariance, else None.
-        self._covariance = belief.covariance
-        if self._covariance is not None:
-            # Constant covariances do not depend on time: downstream caches keep them.
-            self.DeclareVectorOutputPort(
-                "obstacle_covariance",
-                covariance_size(count, dimension),
-                self._calc_covariance,
-                prerequisites_of_calc=(
-                    {self.time_ticket()} if self._scheduled else {self.nothing_ticket()}
-                ),
-            )
-
-    @property
-    def anisotropic(self) -> bool:
-        """Whether some obstacle has a full covariance (then the `obstacle_covariance`
-        output port exists: each Σ_j(t), m², row-major, obstacle-major)."""
-        return self._covariance is not None
 
     @property
     def obstacle_count(self) -> int:
@@ -102,22 +84,12 @@ class ObstacleBeliefSource(LeafSystem):
             table = self._template.copy()
             vector = table.reshape(-1)
             table[:, :n] = self._motions.positions(t)
-        for j in self._scheduled:  # σ schedules, and √λ_max of Σ schedules
-            table[j, n] = obstacle_sigma(self._obstacles[j], t)
-        return vector
-
-    def covariance_vector(self, t: float) -> np.ndarray:
-        """The `obstacle_covariance` port value at time t (anisotropic sources only)."""
-        table = self._covariance.copy()
-        n = self._dimension
-        for j in self._scheduled:
+        for j in self._scheduled:  # σ(t)² I, or Σ(t)
             obstacle = self._obstacles[j]
-            full = obstacle_covariance(obstacle, t, n)  # None: a σ schedule, Σ = σ(t)² I
-            table[j] = obstacle_sigma(obstacle, t) ** 2 * np.eye(n) if full is None else full
-        return table.reshape(-1)
+            full = obstacle_covariance(obstacle, t, n)
+            covariance = obstacle_sigma(obstacle, t) ** 2 * np.eye(n) if full is None else full
+            table[j, n:-1] = covariance.ravel()
+        return vector
 
     def _calc_belief(self, context: Context, output: BasicVector) -> None:
         output.SetFromVector(self.belief_vector(context.get_time()))
-
-    def _calc_covariance(self, context: Context, output: BasicVector) -> None:
-        output.SetFromVector(self.covariance_vector(context.get_time()))

@@ -17,14 +17,14 @@ from pydrake.systems.framework import (
     ValueProducer,
 )
 
-from stt_drake.core.belief import ObstacleBelief, belief_size, covariance_size
+from stt_drake.core.belief import GaussianBelief, ObstacleBelief, ObstacleTask, belief_size
 from stt_drake.core.invariants import (
     INVARIANT_NAMES,
     InvariantTracker,
     RecoveryTracker,
     center_avoid_probability,
-    evaluate_invariants,
     evaluate_invariants_packed,
+    evaluate_invariants_slots,
 )
 
 #: Default step-rate limit L (integrator steps per simulated second) of the watchdog, used
@@ -127,28 +127,28 @@ class InvariantMonitor(LeafSystem):
     outputs `margins` (one per name in :data:`stt_drake.core.invariants.INVARIANT_NAMES`),
     `output_avoid_probability` (m) and `tube_avoid_probability` (m). Recomputes every
     probability itself rather than trusting the tube's diagnostics, so a bug in the tube
-    cannot hide from it."""
+    cannot hide from it.
+
+    `task` holds each slot's r_o, ε, p_d. The margins use the active slots only (an
+    inactive slot's probabilities read 1); with `full_covariance` they use each Σ_j
+    exactly, else σ_j² = λ_max(Σ_j) (exact for Σ_j = σ_j² I)."""
 
     def __init__(
-        self, dimension: int, obstacle_count: int, r_min: float, anisotropic: bool = False
+        self, dimension: int, task: ObstacleTask, r_min: float, full_covariance: bool = False
     ) -> None:
         super().__init__()
         self._dimension = dimension
         self._r_min = r_min
+        self._task = task
+        self._task_table = task.table()
+        self._full_covariance = full_covariance
+        count = task.count
         self._tube_port = self.DeclareVectorInputPort("tube", dimension + 1)
         self._belief_port = self.DeclareVectorInputPort(
-            "obstacle_belief", belief_size(obstacle_count, dimension)
+            "obstacle_belief", belief_size(count, dimension)
         )
         self._output_port = self.DeclareVectorInputPort("output", dimension)
-        self._recovery_port = self.DeclareVectorInputPort("recovery", obstacle_count)
-        # With `anisotropic`: each Σ_j (row-major, obstacle-major); the margins use it.
-        self._covariance_port = (
-            self.DeclareVectorInputPort(
-                "obstacle_covariance", covariance_size(obstacle_count, dimension)
-            )
-            if anisotropic
-            else None
-        )
+        self._recovery_port = self.DeclareVectorInputPort("recovery", count)
         self._sample = self.DeclareCacheEntry(
             description="invariant margins",
             value_producer=ValueProducer(
@@ -165,42 +165,32 @@ class InvariantMonitor(LeafSystem):
         )
         self.DeclareVectorOutputPort(
             "output_avoid_probability",
-            obstacle_count,
+            count,
             self._calc_output_avoid,
             prerequisites_of_calc=depends,
         )
         self.DeclareVectorOutputPort(
             "tube_avoid_probability",
-            obstacle_count,
+            count,
             self._calc_tube_avoid,
             prerequisites_of_calc=depends,
         )
 
     def _calc_sample(self, context: Context, value: AbstractValue) -> None:
-        if self._covariance_port is not None:
-            tube = self._tube_port.Eval(context)
-            sample = evaluate_invariants(
-                self._output_port.Eval(context),
-                tube[:-1],
-                float(tube[-1]),
-                self._belief(context),
-                self._r_min,
+        output = self._output_port.Eval(context)
+        tube = self._tube_port.Eval(context)
+        if self._full_covariance:
+            sample = evaluate_invariants_slots(
+                output, tube, self._belief(context), self._task, True, self._r_min
             )
         else:
             sample = evaluate_invariants_packed(
-                self._output_port.Eval(context),
-                self._tube_port.Eval(context),
-                self._belief_port.Eval(context),
-                self._r_min,
+                output, tube, self._belief_port.Eval(context), self._task_table, self._r_min
             )
         value.set_value(sample)
 
-    def _belief(self, context: Context) -> ObstacleBelief:
-        """The belief in `context`, with the covariances when the port is declared."""
-        covariance = None if self._covariance_port is None else self._covariance_port.Eval(context)
-        return ObstacleBelief.from_ports(
-            self._belief_port.Eval(context), covariance, self._dimension
-        )
+    def _belief(self, context: Context) -> GaussianBelief:
+        return GaussianBelief.from_vector(self._belief_port.Eval(context), self._dimension)
 
     def _calc_output_avoid(self, context: Context, output: BasicVector) -> None:
         output.SetFromVector(self._sample.Eval(context).output_avoid_probability)
@@ -209,10 +199,14 @@ class InvariantMonitor(LeafSystem):
         output.SetFromVector(self._sample.Eval(context).tube_avoid_probability)
 
     def center_margins(self, context: Context) -> np.ndarray:
-        """q_j(c) − ε_j per obstacle at the tube centre (buffered radius r_o_j + r_min)."""
+        """q_j(c) − ε_j per slot at the tube centre (buffered radius r_o_j + r_min); an
+        inactive slot reads 1 − ε_j (no obstacle there)."""
         tube = self._tube_port.Eval(context)
         belief = self._belief(context)
-        return center_avoid_probability(tube[:-1], belief, self._r_min) - belief.epsilon
+        law_belief = ObstacleBelief.of(belief, self._task, self._full_covariance)
+        q = np.ones(belief.count)
+        q[belief.active] = center_avoid_probability(tube[:-1], law_belief, self._r_min)
+        return q - self._task.epsilon
 
     def attach(
         self,

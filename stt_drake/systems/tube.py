@@ -17,7 +17,7 @@ from pydrake.systems.framework import (
     ValueProducer,
 )
 
-from stt_drake.core.belief import ObstacleBelief, belief_size, covariance_size
+from stt_drake.core.belief import GaussianBelief, ObstacleBelief, ObstacleTask, belief_size
 from stt_drake.core.circulation import carry_circulation
 from stt_drake.core.fixed_rate import BeliefRateBounds
 from stt_drake.core.tube import TubeEvaluation, TubeLaw
@@ -26,12 +26,15 @@ from stt_drake.core.tube import TubeEvaluation, TubeLaw
 class SpatiotemporalTube(LeafSystem):
     """The tube Γ(t) = B(c(t), r(t)) of Sec. 3, driven online by the obstacle belief.
 
-    Input `obstacle_belief` (and, with ``anisotropic=True``, `obstacle_covariance`: each
-    Σ_j, m², row-major; the law then uses the exact probabilities of
-    :mod:`stt_drake.core.anisotropic_tube`; continuous mode only); outputs `tube` = [c, r]
-    (n + 1), `diagnostics` = [q_j (m), d̂_j (m), θ_j (m)] and `recovery` (m): 1 while the
-    tube is recovering from obstacle j (its belief left the bounds the guarantee relies on; see
-    :mod:`stt_drake.core.tube`), else 0.
+    Input `obstacle_belief` (mean, covariance and active flag per slot:
+    :class:`stt_drake.core.belief.GaussianBelief`); `task` gives each slot's r_o, ε, p_d.
+    With ``full_covariance=True`` the law uses each Σ_j exactly
+    (:mod:`stt_drake.core.anisotropic_tube`; continuous mode only), else σ_j² = λ_max(Σ_j)
+    (exact for Σ_j = σ_j² I; :func:`stt_drake.core.belief.largest_sigma`). Only active slots
+    reach ċ and r; an inactive slot's diagnostics read q = 1, d̂ = +∞, θ = 0. Outputs `tube`
+    = [c, r] (n + 1), `diagnostics` = [q_j (m), d̂_j (m), θ_j (m)] and `recovery` (m): 1
+    while the tube is recovering from obstacle j (its belief left the bounds the guarantee
+    relies on; see :mod:`stt_drake.core.tube`), else 0.
 
     Two modes:
 
@@ -64,17 +67,18 @@ class SpatiotemporalTube(LeafSystem):
         self,
         law: TubeLaw,
         initial_center: np.ndarray,
-        obstacle_count: int,
+        task: ObstacleTask,
         update_period: float | None = None,
         target_input: bool = False,
         rate_bounds: BeliefRateBounds | None = None,
-        anisotropic: bool = False,
+        full_covariance: bool = False,
     ) -> None:
         super().__init__()
-        if anisotropic and update_period is not None:
+        if full_covariance and update_period is not None:
             raise ValueError(
-                "anisotropic: the fixed-rate tube's period guarantee is derived for isotropic "
-                "beliefs (sigma) only; use update_period=None (continuous) with covariances"
+                "full_covariance: the fixed-rate tube's period guarantee is derived for "
+                "isotropic beliefs (sigma) only; use update_period=None (continuous) with "
+                "covariances"
             )
         if update_period is not None and rate_bounds is None:
             raise ValueError(
@@ -84,7 +88,10 @@ class SpatiotemporalTube(LeafSystem):
             )
         self._law = law
         self._dimension = len(initial_center)
-        self._count = obstacle_count
+        self._task = task
+        self._task_table = task.table()
+        self._full_covariance = full_covariance
+        obstacle_count = self._count = task.count
         self.update_period = update_period
         self._rate_bounds = rate_bounds
         self._belief_port = self.DeclareVectorInputPort(
@@ -92,14 +99,6 @@ class SpatiotemporalTube(LeafSystem):
         )
         self._target_port = (
             self.DeclareVectorInputPort("target", self._dimension) if target_input else None
-        )
-        # With `anisotropic`: each Σ_j, row-major, obstacle-major; the law uses it exactly.
-        self._covariance_port = (
-            self.DeclareVectorInputPort(
-                "obstacle_covariance", covariance_size(obstacle_count, self._dimension)
-            )
-            if anisotropic
-            else None
         )
         initial_center = np.asarray(initial_center, dtype=float)
         circulates = self._dimension == 3 and obstacle_count > 0
@@ -198,12 +197,9 @@ class SpatiotemporalTube(LeafSystem):
         axes = context.get_discrete_state(self._circulation_index).CopyToVector()
         return axes.reshape(self._count, 3)
 
-    def _belief(self, context: Context) -> ObstacleBelief:
-        """The belief in `context`, with the covariances when the port is declared."""
-        covariance = None if self._covariance_port is None else self._covariance_port.Eval(context)
-        return ObstacleBelief.from_ports(
-            self._belief_port.Eval(context), covariance, self._dimension
-        )
+    def _belief(self, context: Context) -> GaussianBelief:
+        """The belief port's value in `context`, unpacked."""
+        return GaussianBelief.from_vector(self._belief_port.Eval(context), self._dimension)
 
     def _law_in(self, context: Context) -> TubeLaw:
         """The law with the target in use: ``law.target``, or the `target` input if declared."""
@@ -217,13 +213,14 @@ class SpatiotemporalTube(LeafSystem):
     def _calc_evaluation(self, context: Context, value: AbstractValue) -> None:
         law = self._law_in(context)
         center = self.center(context)
-        if self._covariance_port is not None:
-            evaluation = law.evaluate(
-                center, self._belief(context), circulation=self._circulation(context)
+        circulation = self._circulation(context)
+        if self._full_covariance:
+            evaluation = law.evaluate_slots(
+                center, self._belief(context), self._task, True, circulation=circulation
             )
         else:
             evaluation = law.evaluate_packed(
-                center, self._belief_port.Eval(context), circulation=self._circulation(context)
+                center, self._belief_port.Eval(context), self._task_table, circulation=circulation
             )
         tube = np.empty(self._dimension + 1)  # the `tube` port value, [c, r]
         tube[:-1] = center
@@ -262,7 +259,7 @@ class SpatiotemporalTube(LeafSystem):
             state = context.get_discrete_state(self._state_index).value()
             output.SetFromVector(state[2 * self._dimension + 3 :])
             return
-        epsilon = self._belief(context).epsilon
+        epsilon = self._task.epsilon  # an inactive slot reads q = 1 > ε: never recovering
         output.SetFromVector((self.evaluation(context).avoid_probability <= epsilon) * 1.0)
 
     def DoCalcTimeDerivatives(  # noqa: N802 (Drake API)
@@ -276,7 +273,7 @@ class SpatiotemporalTube(LeafSystem):
         context: Context,
         discrete_state: DiscreteValues,
         center: np.ndarray,
-        belief: ObstacleBelief,
+        mean: np.ndarray,
         theta: np.ndarray,
     ) -> bool:
         """Write the circulation axes after this step (:func:`carry_circulation`) at
@@ -287,19 +284,26 @@ class SpatiotemporalTube(LeafSystem):
         if not np.any(active) and not np.any(axes):
             return False
         target = self._law_in(context).target
-        carried = carry_circulation(axes, center, belief.mean, active, target - center)
+        carried = carry_circulation(axes, center, mean, active, target - center)
         discrete_state.set_value(self._circulation_index, carried.ravel())
         return True
 
     def _carry_circulation(self, context: Context, discrete_state: DiscreteValues) -> EventStatus:
         center, theta = self.center(context), self.evaluation(context).theta
-        if self._carry(context, discrete_state, center, self._belief(context), theta):
+        if self._carry(context, discrete_state, center, self._belief(context).mean, theta):
             return EventStatus.Succeeded()
         return EventStatus.DidNothing()  # nothing active, nothing held: no state change
 
     def _discrete_update(self, context: Context, discrete_state: DiscreteValues) -> None:
         law = self._law_in(context)
-        belief = self._belief(context)
+        slots = self._belief(context)
+        if not slots.active.all():
+            raise RuntimeError(
+                f"obstacle_belief: slots {np.flatnonzero(~slots.active).tolist()} inactive at "
+                f"t = {context.get_time():.6g} s; the fixed-rate tube's rate bounds need every "
+                "slot active (run a tracked belief in continuous time)"
+            )
+        belief = ObstacleBelief.of(slots, self._task)
         # `discrete_state` holds the current values: update them in place.
         state = discrete_state.get_mutable_value(self._state_index)
         n = self._dimension
@@ -321,7 +325,7 @@ class SpatiotemporalTube(LeafSystem):
         state[2 * n + 2] = context.get_time()
         state[2 * n + 3 :] = ~update.certified
         if self._circulation_index is not None:
-            self._carry(context, discrete_state, update.center, belief, update.theta)
+            self._carry(context, discrete_state, update.center, belief.mean, update.theta)
 
 
 def _period_state(center: np.ndarray, count: int, time: float = 0.0) -> np.ndarray:

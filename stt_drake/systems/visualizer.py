@@ -6,11 +6,12 @@ and every `publish_period`, poses geometry it created once in its constructor:
 
 * ``{prefix}/tube`` (posed) and ``{prefix}/tube/ball`` (scaled) — the tube ball (3D) or
   disc (2D, in the plane z = 0);
-* ``{prefix}/obstacles/{j}`` (posed at the mean) with ``.../body`` — obstacle j's r_o ball;
+* ``{prefix}/obstacles/{j}`` (posed at the mean; hidden while slot j is inactive) with
+  ``.../body`` — obstacle j's r_o ball;
 * ``{prefix}/obstacles/{j}/epsilon_set`` and ``.../p_d_set`` — the level sets
   {q̂_j ≤ ε_j} and {q̂_j ≤ p_d_j} (balls around the mean for an isotropic belief), drawn
   translucent, at least r_o (an unbounded set is drawn at r_o); with full covariances
-  (``anisotropic=True``, input ``obstacle_covariance``) ellipsoids (ellipses in 2D): the
+  (``full_covariance=True``) ellipsoids (ellipses in 2D): the
   obstacle node is also turned to Σ_j's principal axes, and each semi-axis is the level
   set's exact extent along that axis (:func:`stt_drake.core.anisotropic.level_set_radii`);
 * ``{prefix}/robot`` — with a ``output`` port (`robot_radius` given): the robot at y.
@@ -40,7 +41,7 @@ from pydrake.systems.framework import (
 )
 
 from stt_drake.core.anisotropic import eigen_decomposition, level_set_radii
-from stt_drake.core.belief import ObstacleBelief, belief_size, covariance_size
+from stt_drake.core.belief import GaussianBelief, ObstacleTask, belief_size, largest_sigma
 from stt_drake.core.probability import level_set_radius
 
 #: Default publish period of the live view (s): 30 frames per second.
@@ -70,45 +71,46 @@ class TubeVisualizer(LeafSystem):
     Args:
         meshcat: where to draw.
         dimension: n (2 or 3).
-        count: number of obstacles on the belief port.
+        task: r_o, ε, p_d of each obstacle slot on the belief port (inactive slots are
+            hidden).
         publish_period: seconds between publishes.
         prefix: Meshcat path everything is drawn under.
         robot_radius: when given, an input port ``output`` (y) and the robot drawn there.
+        full_covariance: draw each Σ_j's exact level sets as ellipsoids (else balls of
+            σ_j² = λ_max(Σ_j)).
     """
 
     def __init__(
         self,
         meshcat: Meshcat,
         dimension: int,
-        count: int,
+        task: ObstacleTask,
         publish_period: float = PUBLISH_PERIOD,
         prefix: str = "/stt",
         robot_radius: float | None = None,
-        anisotropic: bool = False,
+        full_covariance: bool = False,
     ) -> None:
         super().__init__()
         if dimension not in (2, 3):
             raise ValueError(f"TubeVisualizer draws 2D or 3D scenes (got dimension {dimension})")
         self._meshcat = meshcat
         self._n = dimension
-        self._count = count
+        self._task = task
+        self._full_covariance = full_covariance
+        count = self._count = task.count
         self._prefix = prefix
         self._tube = self.DeclareVectorInputPort("tube", dimension + 1)
         self._belief = self.DeclareVectorInputPort("obstacle_belief", belief_size(count, dimension))
         self._output = None
         if robot_radius is not None:
             self._output = self.DeclareVectorInputPort("output", dimension)
-        self._covariance = (
-            self.DeclareVectorInputPort("obstacle_covariance", covariance_size(count, dimension))
-            if anisotropic
-            else None
-        )
         # Principal axes and semi-axes by (Σ bytes, r_o, ε, p_d): Σ rarely changes.
         self._ellipsoids: dict[tuple, tuple[np.ndarray, list[list[float]]]] = {}
         self.DeclareInitializationPublishEvent(self._initialize)
         self.DeclarePeriodicPublishEvent(publish_period, 0.0, self._publish)
-        # Last scale sent per path: a recording keeps a scale until it changes.
+        # Last scale and visibility sent per path: a recording keeps them until they change.
         self._scales: dict[str, float] = {}
+        self._visible: dict[str, bool] = {}
 
         self._shape(f"{prefix}/tube/ball", TUBE_COLOR, layer=3)
         for j in range(count):
@@ -166,8 +168,14 @@ class TubeVisualizer(LeafSystem):
             self._ellipsoids[key] = (rotation, semi_axes)
         return self._ellipsoids[key]
 
+    def _set_visible(self, path: str, visible: bool, t: float) -> None:
+        if self._visible.get(path, True) != visible:
+            self._visible[path] = visible
+            self._meshcat.SetProperty(path, "visible", visible, t)
+
     def _initialize(self, context: Context, event: object = None) -> EventStatus:
         self._scales.clear()
+        self._visible.clear()
         return self._publish(context)
 
     def _publish(self, context: Context, event: object = None) -> EventStatus:
@@ -176,20 +184,19 @@ class TubeVisualizer(LeafSystem):
         tube = self._tube.Eval(context)
         meshcat.SetTransform(f"{prefix}/tube", RigidTransform(self._lift(tube[:-1])), t)
         self._set_scale(f"{prefix}/tube/ball", float(tube[-1]), t)
-        belief = ObstacleBelief.from_vector(self._belief.Eval(context), self._n)
+        belief = GaussianBelief.from_vector(self._belief.Eval(context), self._n)
         n = self._n
-        covariances = (
-            None
-            if self._covariance is None
-            else self._covariance.Eval(context).reshape(self._count, n, n)
-        )
+        task = self._task
         for j in range(self._count):
             base = f"{prefix}/obstacles/{j}"
-            sigma, r_o = float(belief.sigma[j]), float(belief.radius[j])
+            self._set_visible(base, bool(belief.active[j]), t)
+            if not belief.active[j]:
+                continue
+            r_o = float(task.radius[j])
             names = ("epsilon_set", "p_d_set")
-            levels = (float(belief.epsilon[j]), float(belief.p_d[j]))
-            if covariances is not None:
-                rotation, semi_axes = self._ellipsoid(covariances[j], r_o, levels)
+            levels = (float(task.epsilon[j]), float(task.p_d[j]))
+            if self._full_covariance:
+                rotation, semi_axes = self._ellipsoid(belief.covariance[j], r_o, levels)
                 pose = RigidTransform(RotationMatrix(rotation), self._lift(belief.mean[j]))
                 meshcat.SetTransform(base, pose, t)
                 self._set_scale(f"{base}/body", r_o, t)
@@ -198,6 +205,7 @@ class TubeVisualizer(LeafSystem):
                 continue
             meshcat.SetTransform(base, RigidTransform(self._lift(belief.mean[j])), t)
             self._set_scale(f"{base}/body", r_o, t)
+            sigma = float(largest_sigma(belief.covariance[j]))
             for name, level in zip(names, levels, strict=True):
                 d = _level_set_radius(level, sigma, r_o, n) if sigma > 0 else r_o
                 self._set_scale(f"{base}/{name}", max(d, r_o) if np.isfinite(d) else r_o, t)
@@ -215,32 +223,30 @@ def AddTubeVisualizer(  # noqa: N802 (Drake's naming of builder functions)
     tube: OutputPort,
     belief: OutputPort,
     dimension: int,
-    count: int,
+    task: ObstacleTask,
     output: OutputPort | None = None,
     robot_radius: float | None = None,
     publish_period: float = PUBLISH_PERIOD,
     prefix: str = "/stt",
-    covariance: OutputPort | None = None,
+    full_covariance: bool = False,
 ) -> TubeVisualizer:
     """Add a :class:`TubeVisualizer` named "tube_visualizer" to `builder`, wired to the
-    `tube` and `belief` ports (to `output` when `robot_radius` is given, and to an
-    `obstacle_covariance` port when `covariance` is given: ellipsoids)."""
+    `tube` and `belief` ports (and to `output` when `robot_radius` is given); ellipsoids
+    with `full_covariance`."""
     visualizer = builder.AddNamedSystem(
         "tube_visualizer",
         TubeVisualizer(
             meshcat,
             dimension,
-            count,
+            task,
             publish_period,
             prefix,
             robot_radius,
-            anisotropic=covariance is not None,
+            full_covariance,
         ),
     )
     builder.Connect(tube, visualizer.GetInputPort("tube"))
     builder.Connect(belief, visualizer.GetInputPort("obstacle_belief"))
-    if covariance is not None:
-        builder.Connect(covariance, visualizer.GetInputPort("obstacle_covariance"))
     if robot_radius is not None:
         if output is None:
             raise ValueError("AddTubeVisualizer: robot_radius needs the output port y")
