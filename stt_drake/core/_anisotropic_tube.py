@@ -13,6 +13,9 @@ import math
 import numpy as np
 from numba import njit
 
+# Numba's cache keys each kernel on its own file only: a change to a callee in _anisotropic.py
+# is not seen by the cached anisotropic_tube_step until this file changes too (or the
+# __pycache__/*.nbi index is removed). Last callee change: the quantile's fifth-order step.
 from stt_drake.core._anisotropic import avoid_gradient, quantile_radius
 from stt_drake.core._kernels import (
     _attraction,
