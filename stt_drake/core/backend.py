@@ -53,6 +53,7 @@ KERNELS: dict[str, tuple[int, ...] | None] = {
     "avoid_gradient_array": (2, 3),  # anisotropic.avoid_gradient
     "quantile_radius_array": (2, 3),  # anisotropic.quantile_radius
     "anisotropic_tube_step": (2, 3),  # tube.TubeLaw.evaluate with covariances
+    "track_update": COMPILED_DIMENSIONS,  # tracking.update
 }
 
 #: Kernels that live in another compiled module than :mod:`stt_drake.core._kernels`.
@@ -61,6 +62,7 @@ KERNEL_MODULES: dict[str, str] = {
     "avoid_gradient_array": "_anisotropic",
     "quantile_radius_array": "_anisotropic",
     "anisotropic_tube_step": "_anisotropic_tube",
+    "track_update": "_tracking",
 }
 
 _state: dict[str, object] = {

@@ -1,0 +1,264 @@
+"""Constant-velocity Kalman tracking of obstacle slots, vectorised over slots.
+
+Model (per slot, n axes)
+------------------------
+State x = [p (n), v (n)] (m, m/s) with white acceleration noise of spectral density q
+(``process_density``, m²/s³) per axis: over Δt, x ← F x + w with F = [[I, Δt I], [0, I]]
+and w ~ N(0, Q(Δt)), Q(Δt) = q [[Δt³/3 I, Δt²/2 I], [Δt²/2 I, Δt I]] (the exact
+discretisation). Measurement z = p + e, e ~ N(0, R) (``noise_covariance``, n×n, m²).
+The correction is the Joseph form, P⁺ = (I − K H) P (I − K H)ᵀ + K R Kᵀ with
+K = P Hᵀ S⁻¹, S = H P Hᵀ + R, H = [I 0] (it keeps P positive semi-definite under rounding
+where the short form P − K S Kᵀ need not), made exactly
+symmetric afterwards (numpy: averaged with its transpose; kernel: upper triangle mirrored).
+
+Tracks (:class:`KalmanTracker`)
+-------------------------------
+Data association is known: a detection carries its obstacle's id, which is the slot index,
+and the number of slots is fixed. A slot is *born* from its first detection (mean
+[z, 0], covariance diag(R, σ_v² I) with σ_v = ``initial_velocity_sigma``, m/s), corrected by
+each later detection (predicted to the detection's stamp first), and *lost* (inactive)
+once ``track_timeout`` seconds pass without one; a detection after that re-births it.
+The belief at a time t after the last posterior is the closed-form prediction: mean
+p + v Δt, covariance the position block of F P Fᵀ + Q(Δt), Δt = t − (posterior time), so it
+grows continuously between detections and through dropouts.
+
+The functions take and return explicit arrays, for m slots: ``state`` (m, 2n),
+``covariance`` (m, 2n, 2n), ``dt`` (m,) or a scalar (s), ``z`` (m, n) (m). The hot one,
+:func:`update` (what a tracker step runs), uses the compiled kernel of
+:mod:`stt_drake.core._tracking` unless :mod:`stt_drake.core.backend` selects numpy;
+:func:`predict` and :func:`correct` are its numpy reference.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from stt_drake.core import backend
+from stt_drake.core.belief import GaussianBelief
+from stt_drake.core.perception import Detections
+
+
+def predict(
+    state: np.ndarray, covariance: np.ndarray, dt: float | np.ndarray, density: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(F x, F P Fᵀ + Q(dt)) per slot, with the slot's own dt (s) and density q (m²/s³)."""
+    dt = _per_slot(dt, state.shape[0])
+    n = state.shape[1] // 2
+    transition = _transitions(dt, n)
+    moved = transition @ covariance @ transition.transpose(0, 2, 1)
+    return np.einsum("mij,mj->mi", transition, state), moved + _process_noise(dt, density, n)
+
+
+def correct(
+    state: np.ndarray, covariance: np.ndarray, z: np.ndarray, noise_covariance: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The posterior after measuring the position z (m, n) of every slot with noise
+    covariance R (n, n), Joseph form (module docstring)."""
+    n = z.shape[1]
+    gain_t = np.linalg.solve(covariance[:, :n, :n] + noise_covariance, covariance[:, :n, :])
+    gain = gain_t.transpose(0, 2, 1)
+    posterior = state + np.einsum("mai,mi->ma", gain, z - state[:, :n])
+    complement = np.eye(2 * n) - np.concatenate([gain, np.zeros_like(gain)], axis=2)
+    joseph = complement @ covariance @ complement.transpose(0, 2, 1)
+    joseph += gain @ noise_covariance @ gain_t
+    return posterior, 0.5 * (joseph + joseph.transpose(0, 2, 1))
+
+
+def update(
+    state: np.ndarray,
+    covariance: np.ndarray,
+    dt: float | np.ndarray,
+    z: np.ndarray,
+    density: float,
+    noise_covariance: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`predict` by dt, then :func:`correct` with z: one tracker update per slot."""
+    kernel = backend.compiled("track_update", z.shape[1])
+    if kernel is not None:
+        return kernel(
+            state, covariance, _per_slot(dt, state.shape[0]), z, float(density), noise_covariance
+        )
+    return correct(*predict(state, covariance, dt, density), z, noise_covariance)
+
+
+def birth(
+    z: np.ndarray, noise_covariance: np.ndarray, initial_velocity_sigma: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """New tracks from first detections z (k, n): mean [z, 0], covariance
+    diag(R, σ_v² I) with σ_v = `initial_velocity_sigma` (m/s, a standard deviation)."""
+    count, n = z.shape
+    state = np.concatenate([z, np.zeros_like(z)], axis=1)
+    covariance = np.zeros((count, 2 * n, 2 * n))
+    covariance[:, :n, :n] = noise_covariance
+    covariance[:, n:, n:] = initial_velocity_sigma**2 * np.eye(n)
+    return state, covariance
+
+
+def predicted_position(
+    state: np.ndarray, covariance: np.ndarray, dt: float | np.ndarray, density: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The position belief dt (s) after the posterior, in closed form: mean p + v dt (m, n)
+    and covariance (m, n, n), the position block of F P Fᵀ + Q(dt):
+    P_pp + dt (P_pv + P_vp) + dt² P_vv + q dt³/3 I."""
+    n = state.shape[1] // 2
+    dt = _per_slot(dt, state.shape[0])[:, None, None]
+    mean = state[:, :n] + dt[:, 0] * state[:, n:]
+    cross = covariance[:, :n, n:]
+    position = (
+        covariance[:, :n, :n]
+        + dt * (cross + cross.transpose(0, 2, 1))
+        + dt**2 * covariance[:, n:, n:]
+        + (density * dt**3 / 3.0) * np.eye(n)
+    )
+    return mean, position
+
+
+def _per_slot(dt: float | np.ndarray, count: int) -> np.ndarray:
+    """dt as a contiguous (count,) float array."""
+    return np.broadcast_to(np.asarray(dt, dtype=float), (count,)).copy()
+
+
+def _transitions(dt: np.ndarray, n: int) -> np.ndarray:
+    """F = [[I, dt I], [0, I]] per slot, (m, 2n, 2n)."""
+    transition = np.broadcast_to(np.eye(2 * n), (dt.size, 2 * n, 2 * n)).copy()
+    transition[:, :n, n:] = dt[:, None, None] * np.eye(n)
+    return transition
+
+
+def _process_noise(dt: np.ndarray, density: float, n: int) -> np.ndarray:
+    """Q(dt) = q [[dt³/3, dt²/2], [dt²/2, dt]] ⊗ I_n per slot, (m, 2n, 2n)."""
+    blocks = density * np.stack(
+        [np.stack([dt**3 / 3.0, dt**2 / 2.0], -1), np.stack([dt**2 / 2.0, dt], -1)], -2
+    )
+    return np.kron(blocks, np.eye(n))
+
+
+def track_record_size(dimension: int) -> int:
+    """Length of one slot's record in :meth:`TrackTable.to_vector`."""
+    d = 2 * dimension
+    return d + d * d + 2
+
+
+@dataclass(frozen=True)
+class TrackTable:
+    """Every slot's track (arrays over m slots): the tracker's whole state.
+
+    A posterior stays at the stamp of the detection that made it (the belief at a later
+    time is predicted from it in closed form), so one time per slot is the posterior's
+    time, the last detection's time and the last stamp consumed at once.
+
+    Attributes:
+        state: (m, 2n) posterior mean [p, v] (m, m/s).
+        covariance: (m, 2n, 2n) posterior covariance.
+        detection_time: (m,) stamp of the last detection consumed, = the posterior's time
+            (s; −inf: none yet).
+        active: (m,) bool, whether the slot holds a track.
+
+    An inactive slot's state and covariance are placeholders.
+    """
+
+    state: np.ndarray
+    covariance: np.ndarray
+    detection_time: np.ndarray
+    active: np.ndarray
+
+    @classmethod
+    def empty(cls, count: int, dimension: int) -> TrackTable:
+        """No track: zero means, identity covariances, no detection consumed."""
+        d = 2 * dimension
+        return cls(
+            state=np.zeros((count, d)),
+            covariance=np.broadcast_to(np.eye(d), (count, d, d)).copy(),
+            detection_time=np.full(count, -np.inf),
+            active=np.zeros(count, dtype=bool),
+        )
+
+    def to_vector(self) -> np.ndarray:
+        """Slot-major records ``[state (2n), covariance ((2n)², row-major), detection_time,
+        active (1.0/0.0)]``."""
+        count, d = self.state.shape
+        return np.column_stack(
+            [
+                self.state,
+                self.covariance.reshape(count, d * d),
+                self.detection_time,
+                self.active.astype(float),
+            ]
+        ).ravel()
+
+    @classmethod
+    def from_vector(cls, vector: np.ndarray, dimension: int) -> TrackTable:
+        """Unpack :meth:`to_vector`'s layout."""
+        d = 2 * dimension
+        table = np.asarray(vector, dtype=float).reshape(-1, track_record_size(dimension))
+        return cls(
+            state=table[:, :d],
+            covariance=table[:, d : d + d * d].reshape(-1, d, d),
+            detection_time=table[:, -2],
+            active=table[:, -1] > 0.5,
+        )
+
+
+@dataclass(frozen=True)
+class KalmanTracker:
+    """The tracking rules of the module docstring, for slots in R^dimension.
+
+    Attributes:
+        dimension: n.
+        process_density: white-acceleration spectral density q of the model (m²/s³).
+        noise_covariance: (n, n) measurement noise covariance R (m²).
+        initial_velocity_sigma: standard deviation of a new track's velocity (m/s).
+        track_timeout: seconds without a detection after which a track is lost; it should
+            exceed the sensor period plus its latency plus the tracker period.
+    """
+
+    dimension: int
+    process_density: float
+    noise_covariance: np.ndarray
+    initial_velocity_sigma: float
+    track_timeout: float
+
+    def step(self, tracks: TrackTable, detections: Detections, t: float) -> TrackTable:
+        """The tracks at time t (s) after consuming `detections`: a slot detected with a stamp
+        later than its last one is corrected (predicted to the stamp first) if its track is
+        alive at that stamp, else born; a slot whose last detection is more than
+        `track_timeout` before t is lost."""
+        last, stamp = tracks.detection_time, detections.stamp
+        new = detections.detected & (stamp > last)
+        alive = tracks.active & (stamp <= last + self.track_timeout)
+        corrected, born = new & alive, new & ~alive
+        state, covariance = tracks.state.copy(), tracks.covariance.copy()
+        z = np.asarray(detections.position, dtype=float)
+        r = np.asarray(self.noise_covariance, dtype=float)
+        if corrected.any():
+            state[corrected], covariance[corrected] = update(
+                state[corrected],
+                covariance[corrected],
+                stamp[corrected] - last[corrected],
+                z[corrected],
+                self.process_density,
+                r,
+            )
+        if born.any():
+            state[born], covariance[born] = birth(z[born], r, self.initial_velocity_sigma)
+        detection_time = np.where(new, stamp, last)
+        return TrackTable(
+            state=state,
+            covariance=covariance,
+            detection_time=detection_time,
+            active=(tracks.active | new) & (t <= detection_time + self.track_timeout),
+        )
+
+    def belief(self, tracks: TrackTable, t: float) -> GaussianBelief:
+        """The belief at time t (s): :func:`predicted_position` from each active slot's
+        posterior; inactive slots hold mean 0 and covariance I (placeholders)."""
+        active = tracks.active
+        dt = np.where(active, t - tracks.detection_time, 0.0)
+        mean, covariance = predicted_position(
+            tracks.state, tracks.covariance, dt, self.process_density
+        )
+        mean[~active] = 0.0
+        covariance[~active] = np.eye(self.dimension)
+        return GaussianBelief(mean=mean, covariance=covariance, active=active.copy())
