@@ -61,6 +61,7 @@ DIAGRAMS = Path(str(files("stt_drake.diagrams")))
 TARGETS = {
     "tube_step_50_us": 30.0,
     "anisotropic_tube_step_50_us": 50.0,
+    "tracker_update_us": 20.0,
     "speedup_50": 100.0,
     "controller_us": 10.0,
     "omni_cluttered_50_realtime_factor": 20.0,
@@ -187,6 +188,34 @@ def bench_anisotropic_tube_steps(repeats: int, count: int = 50) -> dict[str, Any
             "quantiles_computed": int(np.sum(evaluation.quantile_distance == exact)),
             "active": int(np.sum(evaluation.theta > 0.0)),
         }
+    return results
+
+
+def bench_tracker_update(repeats: int, count: int = 50) -> dict[str, Any]:
+    """One Kalman tracker update (:func:`stt_drake.core.tracking.update`: predict over
+    0.1 s, correct) of `count` tracks, 2D and 3D; and the whole
+    :meth:`~stt_drake.core.tracking.KalmanTracker.step` (with the birth and loss rules)."""
+    from stt_drake.core.perception import Detections
+    from stt_drake.core.tracking import KalmanTracker, TrackTable, birth, update
+
+    results: dict[str, Any] = {}
+    rng = np.random.default_rng(0)
+    for n in (2, 3):
+        noise = 0.0025 * np.eye(n)
+        z = rng.normal(size=(count, n))
+        state, covariance = birth(z, noise, 0.2)
+        results[f"{n}d/{count}"] = {
+            "update_us": time_call(
+                lambda: update(state, covariance, 0.1, z, 1e-3, noise),  # noqa: B023
+                repeats,
+            )
+        }
+        tracker = KalmanTracker(n, 1e-3, noise, 0.2, 1.0)
+        tracks = TrackTable(state, covariance, np.zeros(count), np.ones(count, dtype=bool))
+        seen = Detections(z, np.ones(count, dtype=bool), np.full(count, 0.1))
+        results[f"{n}d/{count}"]["step_us"] = time_call(
+            lambda: tracker.step(tracks, seen, 0.1), repeats  # noqa: B023
+        )
     return results
 
 
@@ -557,6 +586,7 @@ def run_benchmark(
     load_before = os.getloadavg()
     tube = bench_tube_steps(counts, repeats)
     anisotropic = bench_anisotropic_tube_steps(repeats)
+    tracking = bench_tracker_update(repeats)
     controller = bench_controller(repeats)
     loops, ratios = {}, {}
     for name in SCENARIOS:  # the continuous and the fixed-rate loop, in interleaved pairs
@@ -590,6 +620,9 @@ def run_benchmark(
     }
     result: dict[str, Any] = {
         "tube_step_us": tube_step_us,
+        "tracker_update_us": {
+            f"{n}d": {"50": tracking[f"{n}d/50"]["update_us"]["median"]} for n in (2, 3)
+        },
         "baseline_tube_step_us": table("typical", "baseline_us"),
         "speedup_vs_baseline": table("typical", "speedup"),
         "worst_case_tube_step_us": table("worst", "kernel_us"),
@@ -604,6 +637,7 @@ def run_benchmark(
         "details": {
             "tube_step": tube,
             "anisotropic_tube_step": anisotropic,
+            "tracker_update": tracking,
             "controller": controller,
             "closed_loop": loops,
             "fixed_rate_over_continuous": ratios,
@@ -661,6 +695,12 @@ def _targets(result: dict[str, Any], counts: tuple[int, ...]) -> dict[str, Any]:
             "value": row["50"],
             "target": f"<= {TARGETS['anisotropic_tube_step_50_us']}",
             "met": row["50"] <= TARGETS["anisotropic_tube_step_50_us"],
+        }
+    for n, row in result["tracker_update_us"].items():
+        targets[f"tracker_update_50_{n}_us"] = {
+            "value": row["50"],
+            "target": f"<= {TARGETS['tracker_update_us']}",
+            "met": row["50"] <= TARGETS["tracker_update_us"],
         }
     for name, value in result["controller_us"].items():
         targets[f"controller_{name}_us"] = {

@@ -67,6 +67,7 @@ def obstacle_report(log: RunLog, scenario: Scenario) -> list[dict[str, Any]]:
     """Per obstacle: the closest approach of y to its mean, and its σ and ε."""
     sigmas = log.sigma
     distance = np.linalg.norm(log.output[:, None, :] - log.mean, axis=2)
+    distance[~log.active] = np.inf  # a slot without a track has no mean
     report = []
     for j, obstacle in enumerate(scenario.obstacles):
         if not distance.size:  # nothing logged (a run that failed at its start)
@@ -171,7 +172,8 @@ def load_kernels(scenario: Scenario, built: SttDiagram) -> float:
     controller.control_from_tube(0.0, center, tube)  # the STT controller
     controller.evaluate(0.0, center, center, float(tube[-1]))  # the arm's stage one
     evaluate_invariants_packed(center, tube, vector, table, law.r_min)  # the monitor's margins
-    built.belief_source.belief_vector(0.0)  # the belief port's table
+    if built.belief_source is not None:  # the scripted belief's table (not with a tracker)
+        built.belief_source.belief_vector(0.0)
     return time.perf_counter() - start
 
 
@@ -330,7 +332,8 @@ def _story_lines(m: dict[str, Any]) -> list[str]:
         lines.append(f"  belief discontinuities: {len(jumps)}")
         for jump in jumps[:_SUMMARY_LISTED]:
             lines.append(
-                f"    obstacle {jump['obstacle']} at t = {jump['t']:.2f} s: mean moved "
+                f"    obstacle {jump['obstacle']} at t = {jump['t']:.2f} s ({jump['kind']}): "
+                "mean moved "
                 f"{jump['mean_jump_m']:.3f} m, σ {jump['sigma_jump_m']:+.3f} m, q "
                 f"{jump['q_before']:.4f} → {jump['q_after']:.4f}"
             )

@@ -334,6 +334,16 @@ class RunLog(Mapping[str, np.ndarray]):
         return self._per_obstacle(self._belief.active)
 
     @cached_property
+    def shown_mean(self) -> np.ndarray:
+        """(T, m, n) :attr:`mean` with NaN where the slot held no track (for drawing)."""
+        return np.where(self.active[..., None], self.mean, np.nan)
+
+    @cached_property
+    def shown_sigma(self) -> np.ndarray:
+        """(T, m) :attr:`sigma` with NaN where the slot held no track (for drawing)."""
+        return np.where(self.active, self.sigma, np.nan)
+
+    @cached_property
     def sigma(self) -> np.ndarray:
         """(T, m) σ_j = √λ_max(Σ_j), the belief's largest standard deviation (m)."""
         return largest_sigma(self.belief_covariance)

@@ -40,10 +40,17 @@ def belief_discontinuities(log: Mapping[str, np.ndarray]) -> list[dict[str, Any]
     |σ_k − σ_{k−1}| > s̄_j·Δt·(1 + RATE_SLACK) + SIGMA_SLACK_M, with v̄_j, s̄_j the logged
     `mean_speed_bound` and `sigma_rate_bound` (m/s, steps excluded).
 
+    A run with a tracker (its log has `belief_updates`, the tracker's count of track
+    changes per obstacle) instead lists every tracker update that changed a track — a
+    correction, a birth or a loss — at the first logged sample after it (the motion model
+    does not bound a tracked belief).
+
     Returns:
-        One record per jump, in time order: `t` (t_k), `obstacle` (j), `mean_jump_m`
-        (‖Δμ‖), `sigma_jump_m` (Δσ, signed), `q_before` and `q_after` (the tube's
-        q_j(c) = `avoid_probability` at k − 1 and k).
+        One record per jump, in time order: `t` (t_k), `obstacle` (j), `kind` ("step" of
+        the scripted belief, or a tracker's "correction", "birth" or "loss"),
+        `mean_jump_m` (‖Δμ‖) and `sigma_jump_m` (Δσ, signed) between the samples (0 for a
+        birth or loss: the slot holds no belief on one side), `q_before` and `q_after`
+        (the tube's q_j(c) = `avoid_probability` at k − 1 and k).
     """
     run = RunLog.of(log)
     t = run.t
@@ -52,11 +59,20 @@ def belief_discontinuities(log: Mapping[str, np.ndarray]) -> list[dict[str, Any]
     dt = np.diff(t)[:, None]
     mean_jump = np.linalg.norm(np.diff(run.mean, axis=0), axis=2)
     sigma_jump = np.diff(run.sigma, axis=0)
-    mean_bound = run.mean_speed_bound[None, :]
-    sigma_bound = run.sigma_rate_bound[None, :]
-    jumped = (mean_jump > mean_bound * dt * (1.0 + RATE_SLACK) + MEAN_SLACK_M) | (
-        np.abs(sigma_jump) > sigma_bound * dt * (1.0 + RATE_SLACK) + SIGMA_SLACK_M
-    )
+    kind = np.full(mean_jump.shape, "step", dtype=object)
+    if "belief_updates" in run:
+        jumped = np.diff(run.rows("belief_updates"), axis=0) > 0.0
+        before, after = run.active[:-1], run.active[1:]
+        kind[:] = "correction"
+        kind[~before & after], kind[before & ~after] = "birth", "loss"
+        both = before & after
+        mean_jump, sigma_jump = np.where(both, mean_jump, 0.0), np.where(both, sigma_jump, 0.0)
+    else:
+        mean_bound = run.mean_speed_bound[None, :]
+        sigma_bound = run.sigma_rate_bound[None, :]
+        jumped = (mean_jump > mean_bound * dt * (1.0 + RATE_SLACK) + MEAN_SLACK_M) | (
+            np.abs(sigma_jump) > sigma_bound * dt * (1.0 + RATE_SLACK) + SIGMA_SLACK_M
+        )
     q = run.avoid_probability
     records = []
     for step, j in zip(*np.nonzero(jumped), strict=True):
@@ -65,6 +81,7 @@ def belief_discontinuities(log: Mapping[str, np.ndarray]) -> list[dict[str, Any]
             {
                 "t": float(t[k]),
                 "obstacle": int(j),
+                "kind": str(kind[step, j]),
                 "mean_jump_m": float(mean_jump[step, j]),
                 "sigma_jump_m": float(sigma_jump[step, j]),
                 "q_before": float(q[k - 1, j]),

@@ -80,6 +80,11 @@ def test_bench_json_report(tmp_path, capsys):
     assert {"anisotropic_tube_step_50_2d_us", "anisotropic_tube_step_50_3d_us"} <= set(
         result["targets"]
     )
+    # the Kalman tracker (issue 14): one row per dimension, 50 tracks
+    tracker = result["tracker_update_us"]
+    assert set(tracker) == {"2d", "3d"}
+    assert all(set(row) == {"50"} and row["50"] > 0 for row in tracker.values())
+    assert {"tracker_update_50_2d_us", "tracker_update_50_3d_us"} <= set(result["targets"])
     for table in ("tube_step_us", "baseline_tube_step_us", "speedup_vs_baseline"):
         assert set(result[table]) == {"2d", "3d"}
         for dimension in ("2d", "3d"):

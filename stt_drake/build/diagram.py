@@ -27,8 +27,11 @@ from stt_drake.core.arm import (
     summarize_arm,
 )
 from stt_drake.core.belief import ObstacleTask
+from stt_drake.core.perception import SensorModel, draw_truth_deviation
+from stt_drake.core.tracking import KalmanTracker
 from stt_drake.systems.belief_source import ObstacleBeliefSource
 from stt_drake.systems.monitor import InvariantMonitor
+from stt_drake.systems.perception import ObstacleSensor, ObstacleTracker, TrueObstacles
 from stt_drake.systems.plants.franka import (
     ArmKinematics,
     ArmMeasurement,
@@ -77,7 +80,7 @@ class SttDiagram:
     """A built scenario: the Diagram and handles to its systems and loggers."""
 
     diagram: Diagram
-    belief_source: ObstacleBeliefSource
+    belief_source: ObstacleBeliefSource | None
     tube: SpatiotemporalTube
     controller: LeafSystem
     monitor: InvariantMonitor
@@ -294,6 +297,62 @@ PLANT_BUILDERS: dict[type, Callable[[DiagramBuilder, Scenario], PlantHandles]] =
 }
 
 
+@dataclass
+class PerceptionHandles:
+    """The perception chain :func:`add_perception` added."""
+
+    truth: TrueObstacles
+    sensor: ObstacleSensor
+    tracker: ObstacleTracker
+
+
+#: Independent random streams of one scenario seed (numpy SeedSequence spawn keys).
+TRUTH_STREAM, SENSOR_STREAM = 1, 2
+
+
+def add_perception(
+    builder: DiagramBuilder, scenario: Scenario, robot_output: OutputPort
+) -> PerceptionHandles:
+    """True obstacles → sensor (ranging from `robot_output`) → Kalman tracker, drawn from
+    the scenario's seed (`scenario.perception`, :class:`~stt_drake.config.Perception`)."""
+    config = scenario.perception
+    n, count = scenario.dimension, len(scenario.obstacles)
+    horizon = scenario.duration + config.latency + config.sensor_period
+    truth_draws = np.random.default_rng([scenario.seed, TRUTH_STREAM])
+    path = draw_truth_deviation(
+        count, n, config.process_noise_density, config.truth_period, horizon, truth_draws
+    )
+    truth = builder.AddNamedSystem(
+        "true_obstacles", TrueObstacles([o.motion for o in scenario.obstacles], n, path)
+    )
+    model = SensorModel(
+        count,
+        n,
+        config.sensor_period,
+        horizon,
+        config.noise(n),
+        config.dropout_probability,
+        config.sensing_range or np.inf,
+        np.random.default_rng([scenario.seed, SENSOR_STREAM]),
+    )
+    sensor = builder.AddNamedSystem("obstacle_sensor", ObstacleSensor(model, config.latency))
+    tracker = KalmanTracker(
+        n,
+        config.tracker_density(),
+        config.tracker_noise(n),
+        config.initial_velocity_sigma,
+        config.track_timeout,
+    )
+    tracking = builder.AddNamedSystem(
+        "obstacle_tracker",
+        ObstacleTracker(tracker, count, config.sensor_period, config.blend_time),
+    )
+    builder.Connect(truth.get_output_port(), sensor.GetInputPort("true_obstacle_position"))
+    builder.Connect(robot_output, sensor.GetInputPort("robot_position"))
+    builder.Connect(sensor.GetOutputPort("detections"), tracking.GetInputPort("detections"))
+    return PerceptionHandles(truth, sensor, tracking)
+
+
 def add_live_view(
     builder: DiagramBuilder,
     scenario: Scenario,
@@ -343,12 +402,21 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> SttDiag
     builder = DiagramBuilder()
     plant = PLANT_BUILDERS[type(scenario.plant)](builder, scenario)
     rate = scenario.tube.update_rate_hz
+    source: dict[str, Any] = {"obstacles": scenario.obstacles}
+    perceived = None
+    if scenario.perception is not None:
+        perceived = add_perception(builder, scenario, plant.output)
+        source = {
+            "belief": perceived.tracker.GetOutputPort("obstacle_belief"),
+            "task": ObstacleTask.of(scenario.obstacles),
+            "full_covariance": scenario.perception.full_covariance,
+        }
     stt = AddStt(
         builder,
         make_tube_law(scenario),
         plant.controller or make_funnel_controller(scenario),
         scenario.start,
-        obstacles=scenario.obstacles,
+        **source,
         update_period=1.0 / rate if rate > 0.0 else None,
         rate_bounds=rate_bounds(scenario),
         target_input=plant.sequencer is not None,
@@ -370,6 +438,9 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> SttDiag
         "tube_avoid_probability": monitor.GetOutputPort("tube_avoid_probability"),
     }
     extra = dict(plant.logged)
+    if perceived is not None:  # the truth the end-to-end check needs, and the corrections
+        extra["true_obstacle_position"] = perceived.truth.GetOutputPort("true_obstacle_position")
+        extra["belief_updates"] = perceived.tracker.GetOutputPort("belief_updates")
     if plant.sequencer is not None:
         builder.Connect(stt.tube, plant.sequencer.GetInputPort("tube"))
         builder.Connect(plant.sequencer.GetOutputPort("target"), tube.GetInputPort("target"))

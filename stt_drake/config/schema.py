@@ -239,6 +239,65 @@ PLANT_STAGES = {OmniRobot: 1, Quadrotor: 2, FrankaArm: 2}
 PLANT_FUNNEL_DIMENSION = {FrankaArm: 7}
 
 
+@dataclass
+class Perception:
+    """Perception in the loop (:mod:`stt_drake.systems.perception`): the obstacles' true
+    centres, a sensor and a Kalman tracker replace the scripted belief.
+
+    Truth: O_j(t) = (the obstacle's `motion`)(t) + δ_j(t), δ driven by white acceleration
+    noise of spectral density `process_noise_density` (m²/s³ per axis; 0: the motion
+    exactly), drawn on a grid of `truth_period` seconds. Sensor: every `sensor_period`
+    seconds, each obstacle within `sensing_range` metres of the robot (0: everywhere) is
+    detected unless dropped (probability `dropout_probability`), at its true centre plus
+    Gaussian noise of standard deviation `noise_sigma` (m, isotropic) or covariance
+    `noise_covariance` (n×n, m²), delivered `latency` seconds later. Tracker: one
+    constant-velocity Kalman filter per obstacle with white-acceleration density
+    `tracker_process_density` (m²/s³) and measurement noise `tracker_noise_sigma` (m) or
+    `tracker_noise_covariance` (m²) — by default the true ones (a calibrated tracker) —
+    new tracks with velocity standard deviation `initial_velocity_sigma` (m/s), lost after
+    `track_timeout` seconds without a detection; after a correction the published belief
+    moves to the new track over `blend_time` seconds (≤ sensor_period; 0: it jumps, and the
+    tube recovers from the jump). `full_covariance`: the tube uses each
+    track's Σ exactly (else σ² = λ_max(Σ), exact only for isotropic noise models).
+    Draws come from the scenario's `seed`."""
+
+    process_noise_density: float = 0.0
+    truth_period: float = 0.01
+    sensor_period: float = 0.1
+    noise_sigma: float = 0.05
+    noise_covariance: list[list[float]] | None = None
+    dropout_probability: float = 0.0
+    sensing_range: float = 0.0
+    latency: float = 0.0
+    tracker_process_density: float | None = None
+    tracker_noise_sigma: float | None = None
+    tracker_noise_covariance: list[list[float]] | None = None
+    initial_velocity_sigma: float = 1.0
+    track_timeout: float = 1.0
+    blend_time: float = 0.1
+    full_covariance: bool = True
+
+    def noise(self, dimension: int) -> np.ndarray:
+        """The sensor's true noise covariance R (n×n, m²)."""
+        if self.noise_covariance is not None:
+            return np.asarray(self.noise_covariance, dtype=float)
+        return self.noise_sigma**2 * np.eye(dimension)
+
+    def tracker_noise(self, dimension: int) -> np.ndarray:
+        """The noise covariance the tracker assumes (m²; default: the true one)."""
+        if self.tracker_noise_covariance is not None:
+            return np.asarray(self.tracker_noise_covariance, dtype=float)
+        if self.tracker_noise_sigma is not None:
+            return self.tracker_noise_sigma**2 * np.eye(dimension)
+        return self.noise(dimension)
+
+    def tracker_density(self) -> float:
+        """The process density the tracker assumes (m²/s³; default: the true one)."""
+        if self.tracker_process_density is None:
+            return self.process_noise_density
+        return self.tracker_process_density
+
+
 def _default_simulator_config() -> SimulatorConfig:
     return SimulatorConfig(
         integration_scheme="runge_kutta3",
@@ -272,6 +331,7 @@ class Scenario:
     strict: bool = False
     max_steps_per_second: float = 0.0
     max_memory_gb: float = 0.0
+    perception: Perception | None = None
 
     @property
     def dimension(self) -> int:

@@ -24,6 +24,7 @@ from stt_drake.config.schema import (
     ControllerConfig,
     Obstacle,
     OmniRobot,
+    Perception,
     Quadrotor,
     Scenario,
     ScenarioError,
@@ -301,6 +302,63 @@ def _validate_full_covariance(obstacle: Obstacle, n: int, path: str) -> None:
             require_covariance(matrix, n, f"{where}.covariances[{k}]")
 
 
+def _validate_perception(perception: Perception, scenario: Scenario) -> None:
+    """The `perception:` section: finite non-negative rates and densities, periods > 0,
+    valid noise covariances, a timeout longer than a detection's way to the tracker, and a
+    continuous tube (the fixed-rate guarantee needs belief rate bounds a tracker lacks)."""
+    path = "scenario.perception"
+    n = scenario.dimension
+    for name in ("process_noise_density", "sensing_range", "latency"):
+        value = getattr(perception, name)
+        require(0.0 <= value < math.inf, f"{path}.{name}", "must be finite and ≥ 0", value)
+    for name in ("truth_period", "sensor_period", "initial_velocity_sigma", "track_timeout"):
+        value = getattr(perception, name)
+        require(0.0 < value < math.inf, f"{path}.{name}", "must be finite and > 0", value)
+    require(
+        0.0 <= perception.dropout_probability < 1.0,
+        f"{path}.dropout_probability",
+        "must be in [0, 1) (1 would never detect anything)",
+        perception.dropout_probability,
+    )
+    density = perception.tracker_process_density
+    require(
+        density is None or 0.0 <= density < math.inf,
+        f"{path}.tracker_process_density",
+        "must be finite and ≥ 0 (m²/s³)",
+        density,
+    )
+    for name in ("noise_sigma", "tracker_noise_sigma"):
+        value = getattr(perception, name)
+        if value is not None:
+            require(0.0 < value < math.inf, f"{path}.{name}", "must be finite and > 0 (m)", value)
+    for name in ("noise_covariance", "tracker_noise_covariance"):
+        matrix = getattr(perception, name)
+        if matrix is not None:
+            require_covariance(matrix, n, f"{path}.{name}")
+    require(
+        0.0 <= perception.blend_time <= perception.sensor_period,
+        f"{path}.blend_time",
+        f"must be in [0, sensor_period = {perception.sensor_period:g}] s (a blend ends "
+        "before the next correction)",
+        perception.blend_time,
+    )
+    way = perception.sensor_period + perception.latency + perception.sensor_period
+    require(
+        perception.track_timeout > way,
+        f"{path}.track_timeout",
+        f"must exceed 2·sensor_period + latency = {way:g} s (the way of a detection to the "
+        "tracker), or every new track is lost at once",
+        perception.track_timeout,
+    )
+    require(
+        scenario.tube.update_rate_hz == 0.0,
+        "scenario.tube.update_rate_hz",
+        "must be 0 (continuous time) with perception: the fixed-rate tube's period guarantee "
+        "needs bounds on how fast the belief moves, which a tracker's corrections do not have",
+        scenario.tube.update_rate_hz,
+    )
+
+
 def _validate_controller(config: ControllerConfig, n: int, stages: int) -> None:
     path = "scenario.controller"
     require(
@@ -454,6 +512,8 @@ def validate(scenario: Scenario) -> None:
         "obstacles, or the soft-min radius can go negative (0 derives it)",
         tube.nu,
     )
+    if scenario.perception is not None:
+        _validate_perception(scenario.perception, scenario)
     _validate_plant(scenario)
     stages = PLANT_STAGES[type(scenario.plant)]
     funnel_dimension = PLANT_FUNNEL_DIMENSION.get(type(scenario.plant), n)

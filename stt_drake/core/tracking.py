@@ -262,3 +262,24 @@ class KalmanTracker:
         mean[~active] = 0.0
         covariance[~active] = np.eye(self.dimension)
         return GaussianBelief(mean=mean, covariance=covariance, active=active.copy())
+
+
+def blend_beliefs(old: GaussianBelief, new: GaussianBelief, weight: float) -> GaussianBelief:
+    """The belief moving from `old` to `new` as `weight` goes from 0 to 1: in each slot
+    active in both, the moment-matched mixture (1 − w)·N(μ_old, Σ_old) + w·N(μ_new, Σ_new),
+    mean μ = (1 − w)μ_old + wμ_new and covariance
+    Σ = (1 − w)Σ_old + wΣ_new + w(1 − w)(μ_new − μ_old)(μ_new − μ_old)ᵀ — continuous in w,
+    equal to `old` at 0 and `new` at 1, and never narrower than the mixture it summarises.
+    Other slots (born or lost in between) are `new`'s."""
+    w = float(np.clip(weight, 0.0, 1.0))
+    both = old.active & new.active
+    mean, covariance = new.mean.copy(), new.covariance.copy()
+    jump = new.mean[both] - old.mean[both]
+    mean[both] = (1.0 - w) * old.mean[both] + w * new.mean[both]
+    covariance[both] = (
+        (1.0 - w) * old.covariance[both]
+        + w * new.covariance[both]
+        + w * (1.0 - w) * jump[:, :, None] * jump[:, None, :]
+    )
+    return GaussianBelief(mean=mean, covariance=covariance, active=new.active.copy())
+

@@ -79,7 +79,7 @@ def _plot_obstacle_margins(fig: Figure, ax: Any, run: RunLog) -> None:
         return
     norm, cmap = _obstacle_colors(run)
     margin = run.output_avoid_probability - run.epsilon  # (T, m)
-    sigma_bar = np.mean(run.sigma, axis=0)
+    sigma_bar = np.nanmean(np.where(run.active, run.sigma, np.nan), axis=0)
     few = run.count <= _LEGEND_MAX
     for j in range(run.count):
         style: dict[str, Any] = {"lw": 1.1, "alpha": 0.85}

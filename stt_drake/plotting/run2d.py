@@ -42,12 +42,12 @@ def _snapshot_limits(run: RunLog, indices: Sequence[int], extents: np.ndarray) -
         run.target[None, :2] + run.target_set_radius,
     ]
     for k, index in enumerate(indices):
-        mean = run.mean[index, :, :2]
+        mean = run.shown_mean[index, :, :2]
         reach = extents[k][:, None]
         lows.append(mean - reach)
         highs.append(mean + reach)
-    low = np.min(np.vstack([*points, *lows]), axis=0)
-    high = np.max(np.vstack([*points, *highs]), axis=0)
+    low = np.nanmin(np.vstack([*points, *lows]), axis=0)
+    high = np.nanmax(np.vstack([*points, *highs]), axis=0)
     pad = 0.05 * np.max(high - low) + 1e-9
     return np.column_stack([low - pad, high + pad])
 
@@ -100,7 +100,7 @@ def plot_snapshots(log: Mapping[str, Any], times: Sequence[float] | None = None)
     fig = Figure(figsize=(4.2 * panels + 1.2, 4.8), layout="constrained")
     axes = fig.subplots(1, panels, sharex=True, sharey=True, squeeze=False)[0]
     for ax, index, disc in zip(axes, indices, discs, strict=True):
-        for j in range(run.count):
+        for j in np.flatnonzero(run.active[index]):
             color = cmap(norm(run.sigma[index, j]))
             center = run.mean[index, j]
             light, dark = disc[j]
@@ -118,7 +118,7 @@ def plot_snapshots(log: Mapping[str, Any], times: Sequence[float] | None = None)
             ax.add_patch(
                 Circle(center, run.obstacle_radius[index, j], fc="none", ec=color, lw=1.4, zorder=3)
             )
-            ax.plot(*run.mean[: index + 1, j].T, ls=":", lw=0.9, color=color, zorder=2)
+            ax.plot(*run.shown_mean[: index + 1, j].T, ls=":", lw=0.9, color=color, zorder=2)
             ax.annotate(str(j), center, ha="center", va="center", fontsize=7, color=color, zorder=3)
         ax.add_patch(
             Circle(run.start, run.initial_set_radius, fc="none", ec=PALETTE["start"], lw=1.3)
@@ -211,9 +211,9 @@ def plot_tube_3d(log: Mapping[str, Any], circles: int = 60) -> Figure:
     ring_lw, ring_alpha, ring_stride = (0.4, 0.3, 8) if many else (0.6, 0.6, 4)
     ax.plot(*run.output.T, run.t, color=PALETTE["trajectory"], lw=2.0 if many else 1.5)
     for j in range(run.count):
-        path = np.column_stack([run.mean[:, j], run.t])
+        path = np.column_stack([run.shown_mean[:, j], run.t])
         segments = np.stack([path[:-1], path[1:]], axis=1)
-        sigma_mid = 0.5 * (run.sigma[:-1, j] + run.sigma[1:, j])
+        sigma_mid = 0.5 * (run.shown_sigma[:-1, j] + run.shown_sigma[1:, j])
         ax.add_collection3d(
             Line3DCollection(segments, colors=cmap(norm(sigma_mid)), lw=path_lw, alpha=path_alpha)
         )
@@ -222,7 +222,7 @@ def plot_tube_3d(log: Mapping[str, Any], circles: int = 60) -> Figure:
     obstacle_rings, ring_colors = [], []
     for i in picks[::ring_stride]:
         for j, disc in enumerate(_obstacle_discs(run, i)[:, 1]):
-            if np.isfinite(disc) and disc > 0.0:
+            if run.active[i, j] and np.isfinite(disc) and disc > 0.0:
                 obstacle_rings.append(
                     np.column_stack([run.mean[i, j] + disc * ring, np.full(angle.size, run.t[i])])
                 )
@@ -236,10 +236,10 @@ def plot_tube_3d(log: Mapping[str, Any], circles: int = 60) -> Figure:
     points += [run.start - run.initial_set_radius, run.start + run.initial_set_radius]
     points += [run.target - run.target_set_radius, run.target + run.target_set_radius]
     if run.count:
-        points.append(run.mean.reshape(-1, 2))
+        points.append(run.shown_mean.reshape(-1, 2))
     everything = np.vstack(points)
-    ax.set_xlim(everything[:, 0].min(), everything[:, 0].max())
-    ax.set_ylim(everything[:, 1].min(), everything[:, 1].max())
+    ax.set_xlim(np.nanmin(everything[:, 0]), np.nanmax(everything[:, 0]))
+    ax.set_ylim(np.nanmin(everything[:, 1]), np.nanmax(everything[:, 1]))
     ax.set_zlim(run.t[0], run.t[-1])
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")

@@ -167,7 +167,7 @@ def plot_snapshots_3d(log: Mapping[str, Any], times: Sequence[float] | None = No
     axes = [fig.add_subplot(1, panels, i + 1, projection="3d") for i in range(panels)]
     level_sets: dict[tuple[float, float, float], float] = {}
     for ax, index in zip(axes, indices, strict=True):
-        for j in range(run.count):
+        for j in np.flatnonzero(run.active[index]):
             color = cmap(norm(run.sigma[index, j]))
             mean = run.mean[index, j]
             ax.plot_surface(

@@ -51,7 +51,9 @@ def _obstacle_colors(run: RunLog) -> tuple[Normalize, Colormap]:
     cmap = ListedColormap(base(np.linspace(*_CMAP_RANGE, 256)), name="obstacle_sigma")
     if run.count == 0:
         return Normalize(0.0, 1.0), cmap
-    low, high = float(np.min(run.sigma)), float(np.max(run.sigma))
+    if not run.active.any():
+        return Normalize(0.0, 1.0), cmap
+    low, high = float(np.nanmin(run.shown_sigma)), float(np.nanmax(run.shown_sigma))
     if high - low < 1e-12 * max(abs(high), 1.0):
         low, high = low * 0.5, high * 1.5 if high > 0 else 1.0
     return Normalize(low, high), cmap

@@ -19,10 +19,10 @@ from collections.abc import Sequence
 import numpy as np
 from pydrake.systems.framework import BasicVector, Context, DiscreteValues, LeafSystem
 
-from stt_drake.core.belief import belief_size
+from stt_drake.core.belief import GaussianBelief, belief_size
 from stt_drake.core.motion import Motion, MotionTable
 from stt_drake.core.perception import Detections, SensorModel, TruthPath, detection_size
-from stt_drake.core.tracking import KalmanTracker, TrackTable
+from stt_drake.core.tracking import KalmanTracker, TrackTable, blend_beliefs
 
 
 class TrueObstacles(LeafSystem):
@@ -129,15 +129,38 @@ class ObstacleTracker(LeafSystem):
     closed form to the context time; an inactive slot has active = 0, mean 0 and covariance
     I (placeholders). It depends on time and the discrete state only. Use the sensor's
     period: detections delivered between two tracker updates are not seen.
+
+    A correction moves the posterior at once; with ``blend_time`` τ > 0 the output moves
+    from the old track's prediction to the new one over τ seconds
+    (:func:`stt_drake.core.tracking.blend_beliefs`: the moment-matched mixture, so the
+    belief the tube reads is continuous in time and its mean moves at most |Δμ|/τ faster
+    than the tracks'); τ = 0 publishes the jump, which the tube meets with its recovery
+    behaviour (:mod:`stt_drake.core.tube`). Births and losses are never blended.
+
+    Output `belief_updates` (m): per slot, how many updates so far changed its track (a
+    correction, a birth or a loss), which a run's metrics list as belief discontinuities.
     """
 
-    def __init__(self, tracker: KalmanTracker, count: int, period: float) -> None:
+    def __init__(
+        self, tracker: KalmanTracker, count: int, period: float, blend_time: float = 0.0
+    ) -> None:
         super().__init__()
+        if not 0.0 <= blend_time <= period:
+            raise ValueError(
+                f"ObstacleTracker: blend_time must be in [0, period = {period} s] (a blend "
+                f"ends before the next update), got {blend_time}"
+            )
+        self._blend_time = blend_time
         self._tracker = tracker
         n = tracker.dimension
         self._detections_port = self.DeclareVectorInputPort("detections", detection_size(count, n))
         self._tracks = self.DeclareDiscreteState(TrackTable.empty(count, n).to_vector())
+        self._updates = self.DeclareDiscreteState(np.zeros(count))
+        # The tracks before the last update, and its time (the blend's start).
+        self._previous = self.DeclareDiscreteState(TrackTable.empty(count, n).to_vector())
+        self._update_time = self.DeclareDiscreteState([-np.inf])
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+        self.DeclareStateOutputPort("belief_updates", self._updates)
         self.DeclareVectorOutputPort(
             "obstacle_belief",
             belief_size(count, n),
@@ -154,9 +177,27 @@ class ObstacleTracker(LeafSystem):
         detections = Detections.from_vector(
             self._detections_port.Eval(context), self._tracker.dimension
         )
-        tracks = self._tracker.step(self.tracks(context), detections, context.get_time())
-        discrete_state.set_value(self._tracks, tracks.to_vector())
+        before = context.get_discrete_state(self._tracks).value()
+        after = self._tracker.step(self.tracks(context), detections, context.get_time())
+        vector = after.to_vector()
+        changed = np.any((vector != before).reshape(len(after.active), -1), axis=1)
+        discrete_state.set_value(self._tracks, vector)
+        counts = context.get_discrete_state(self._updates).value() + changed
+        discrete_state.set_value(self._updates, counts)
+        discrete_state.set_value(self._previous, before)
+        discrete_state.set_value(self._update_time, [context.get_time()])
+
+    def belief(self, context: Context) -> GaussianBelief:
+        """The published belief at the context time (blended after an update)."""
+        t = context.get_time()
+        belief = self._tracker.belief(self.tracks(context), t)
+        elapsed = t - context.get_discrete_state(self._update_time).value()[0]
+        if elapsed >= self._blend_time:
+            return belief
+        vector = context.get_discrete_state(self._previous).value()
+        previous = TrackTable.from_vector(vector, self._tracker.dimension)
+        old = self._tracker.belief(previous, t)
+        return blend_beliefs(old, belief, elapsed / self._blend_time)
 
     def _calc_belief(self, context: Context, output: BasicVector) -> None:
-        belief = self._tracker.belief(self.tracks(context), context.get_time())
-        output.SetFromVector(belief.to_vector())
+        output.SetFromVector(self.belief(context).to_vector())
