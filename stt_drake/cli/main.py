@@ -33,6 +33,7 @@ EXIT_SUCCESS, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
 SUBCOMMAND_MODULES: tuple[str, ...] = (
     "stt_drake.cli.run",
     "stt_drake.cli.campaign",
+    "stt_drake.cli.compare",
     "stt_drake.cli.diagram",
     "stt_drake.cli.bench",
     "stt_drake.cli.list",

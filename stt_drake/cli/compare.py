@@ -1,0 +1,73 @@
+"""`stt-drake compare SCENARIO --controllers stt cbf apf --runs N --out DIR`: STT against
+the CBF-QP and potential-field baselines on one scenario (:mod:`stt_drake.compare`).
+
+Exit codes: 0 the comparison finished (comparison.json, .md and .png written; the table is
+printed), 1 a campaign stopped, 2 bad input (found before any work).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from stt_drake.cli.main import BadInputError, CommandError, resolve_scenario
+
+
+def _compare(args: argparse.Namespace) -> bool:
+    # Imported here: the comparison loads Drake, which other subcommands' start-up avoids.
+    from stt_drake.campaign import CampaignStoppedError
+    from stt_drake.compare import TABLE_FILE, CompareError, compare, comparison_table
+
+    scenario = resolve_scenario(args.scenario)  # a path, or a packaged scenario's name
+    try:
+        document = compare(
+            scenario,
+            args.controllers,
+            args.runs,
+            args.out,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            model_error=args.model_error,
+            solver=args.solver,
+        )
+    except CompareError as error:
+        raise BadInputError(f"stt-drake compare: {error}") from None
+    except (CampaignStoppedError, KeyboardInterrupt) as error:
+        why = "interrupted" if isinstance(error, KeyboardInterrupt) else str(error)
+        raise CommandError(f"stt-drake compare: stopped: {why}") from None
+    print(comparison_table(document["rows"]))
+    print(f"  wrote {args.out / TABLE_FILE} and comparison.json, comparison.png there")
+    return True
+
+
+def add_parser(commands: argparse._SubParsersAction) -> None:
+    """Declare `stt-drake compare`."""
+    parser = commands.add_parser(
+        "compare",
+        help="compare STT with the CBF-QP and potential-field baselines",
+        description="Simulate each controller once on the scenario, run a true-obstacle "
+        "campaign against each closed loop, and write comparison.json/.md/.png. Exit code 0: "
+        "done; 1: a campaign stopped; 2: bad input.",
+    )
+    parser.add_argument("scenario", help="scenario YAML, or a packaged scenario's name")
+    parser.add_argument(
+        "--controllers",
+        nargs="+",
+        required=True,
+        help="controllers to compare: stt, cbf (chance-constrained CBF-QP), apf (potential field)",
+    )
+    parser.add_argument("--runs", type=int, required=True, help="campaign runs per controller")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, help="local processes (default: cores)")
+    where.add_argument("--scheduler", default=None, help="Dask scheduler, e.g. tcp://host:8786")
+    parser.add_argument(
+        "--model-error",
+        action="store_true",
+        help="also compare with the plant's true parameters perturbed (omni: wheel radius x0.9; "
+        "quadrotor: mass x0.5, mass x2, drag x2)",
+    )
+    parser.add_argument(
+        "--solver", default="osqp", help="the CBF's QP solver: osqp (default) or clarabel"
+    )
+    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.set_defaults(handler=_compare)

@@ -1,0 +1,500 @@
+"""`stt-drake compare`: STT against the chance-constrained CBF-QP and the potential field
+(:mod:`stt_drake.build.baselines`) on one scenario.
+
+Per controller: one closed-loop simulation of the scenario (same plant, disturbance and
+obstacles; STT through :func:`stt_drake.run.simulate`), then a true-obstacle Monte Carlo
+campaign (:func:`stt_drake.campaign.run_campaign`) of `runs` draws against that closed loop
+in ``out_dir/<controller>/``. A baseline has no tube: its closed loop has c = y and r = 0,
+and only the campaign's output check is reported.
+
+``comparison.json`` has one row per controller (:data:`ROW_KEYS`):
+
+* `success_rate`: 1.0 when the simulation ended normally, the *output* reached the target
+  set and stayed in it to the end (:func:`output_reach_time`, the same rule for every
+  controller) and no plant limit was exceeded, else 0.0 (one simulation);
+* `worst_collision_frequency`, `clopper_pearson_lower_99`, `clopper_pearson_upper_99`: the
+  campaign's output check at the worst obstacle (highest worst-time collision frequency),
+  with its simultaneous 99 % Clopper-Pearson interval; `certified`: every obstacle's output
+  verdict is certified;
+* `t_reach_s` (s, null if never), `path_length_m`, `min_clearance_m` = min over time and
+  obstacles of ‖y − μ_j‖ − r_o_j;
+* `step_us_median`: the controller's cost per control step (µs, median, this process): STT,
+  the tube law's :meth:`~stt_drake.core.tube.TubeLaw.evaluate_packed` plus
+  :meth:`~stt_drake.core.control.FunnelController.control_from_tube` on the logged samples;
+  CBF, the controller's own timing of its updates (belief, rows, QP); APF, the controller
+  system's `control` port evaluated on the logged samples (Drake's port overhead included);
+* `qp_infeasible_count`: the CBF's updates whose hard QP was infeasible (null otherwise);
+* `model_error`: null, or the name of the perturbation of the plant's true parameters
+  (:data:`MODEL_ERRORS`) the row's simulations ran with (``--model-error``).
+
+Plus ``comparison.md`` (the table) and ``comparison.png`` (paths and metrics).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import sys
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
+
+from stt_drake.build.baselines import (
+    BASELINES,
+    SOLVERS,
+    BaselineError,
+    build_baseline_diagram,
+    nominal_plant,
+)
+from stt_drake.build.laws import make_funnel_controller, make_tube_law
+from stt_drake.campaign import CampaignError, CampaignSpec, ClosedLoop, run_campaign
+from stt_drake.config import OmniRobot, Quadrotor, Scenario
+from stt_drake.core.statistics import CERTIFIED
+from stt_drake.run import MAX_STEP_SLACK, simulate
+from stt_drake.runlog import RunLog, unwritable_reason, write_json
+from stt_drake.systems.baselines import PotentialFieldController
+
+#: Every controller `compare` knows, in table order.
+CONTROLLERS = ("stt", *BASELINES)
+#: The keys of every row of comparison.json.
+ROW_KEYS = (
+    "controller",
+    "model_error",
+    "success_rate",
+    "worst_collision_frequency",
+    "clopper_pearson_lower_99",
+    "clopper_pearson_upper_99",
+    "certified",
+    "t_reach_s",
+    "path_length_m",
+    "min_clearance_m",
+    "step_us_median",
+    "qp_infeasible_count",
+)
+#: The plant-parameter perturbations of ``--model-error``, per plant config type:
+#: (name, {field: factor}) applied to the scenario's true values.
+MODEL_ERRORS: dict[type, tuple[tuple[str, dict[str, float]], ...]] = {
+    OmniRobot: (("wheel_radius x0.9", {"wheel_radius": 0.9}),),
+    Quadrotor: (
+        ("mass x0.5", {"mass": 0.5}),
+        ("mass x2", {"mass": 2.0}),
+        ("drag x2", {"drag": 2.0}),
+    ),
+}
+COMPARISON_FILE, TABLE_FILE, FIGURE_FILE = "comparison.json", "comparison.md", "comparison.png"
+#: How many times the figure draws the obstacles' means at.
+_FIGURE_TIMES = 4
+
+
+class CompareError(ValueError):
+    """Bad input to `compare`; the message names the option."""
+
+
+@dataclass
+class ControllerRun:
+    """One controller's simulation: its log (the :mod:`stt_drake.runlog` layout; a
+    baseline's has c = y, r = 0), whether it ended normally with every plant limit kept,
+    its median step time (µs) and the CBF's infeasible-update count."""
+
+    log: RunLog
+    finished: bool
+    step_us: float
+    qp_infeasible_count: int | None = None
+
+
+def output_reach_time(
+    t: np.ndarray, output: np.ndarray, target: np.ndarray, target_set_radius: float
+) -> float | None:
+    """The first sample time from which ‖y − η‖ ≤ R_T holds to the last sample; None if
+    the output is outside the target set at the end."""
+    inside = np.linalg.norm(output - target, axis=1) <= target_set_radius
+    if not inside.size or not inside[-1]:
+        return None
+    outside = np.flatnonzero(~inside)
+    return float(t[outside[-1] + 1] if outside.size else t[0])
+
+
+def min_clearance(log: RunLog) -> float:
+    """min over samples and active obstacles of ‖y − μ_j‖ − r_o_j (m); +∞ without any."""
+    gap = np.linalg.norm(log.output[:, None, :] - log.mean, axis=2) - log.obstacle_radius
+    gap = gap[log.active]
+    return float(gap.min()) if gap.size else math.inf
+
+
+def _plant_states(log: RunLog, stages: int) -> np.ndarray:
+    """(T, stages·n) the controller's stacked states: y, and for two stages ẏ estimated
+    from the logged output (only for timing: the kernels' cost does not depend on it)."""
+    if stages == 1:
+        return log.output
+    return np.hstack([log.output, np.gradient(log.output, log.t, axis=0)])
+
+
+def stt_step_time_us(scenario: Scenario, log: RunLog) -> float:
+    """Median µs of one STT control step on the logged samples: the tube law
+    (``evaluate_packed``) and the funnel controller (``control_from_tube``)."""
+    law, controller = make_tube_law(scenario), make_funnel_controller(scenario)
+    table = log.task.table()
+    vectors = log.rows("belief")
+    states = _plant_states(log, controller.stages)
+    axes = np.zeros((log.count, 3)) if log.dimension == 3 else None
+    times = np.empty(log.samples)
+    for k in range(log.samples):
+        tube = np.append(log.center[k], log.radius[k])
+        start = time.perf_counter()
+        law.evaluate_packed(log.center[k], vectors[k], table, circulation=axes)
+        controller.control_from_tube(log.t[k], states[k], tube)
+        times[k] = time.perf_counter() - start
+    return float(1e6 * np.median(times))
+
+
+def _port_step_time_us(system: PotentialFieldController, log: RunLog, order: int) -> float:
+    """Median µs of evaluating `system`'s `control` output on each logged sample (its
+    `plant_state` and `obstacle_belief` inputs fixed to the sample)."""
+    context = system.CreateDefaultContext()
+    state_port = system.GetInputPort("plant_state")
+    belief_port = system.GetInputPort("obstacle_belief")
+    control = system.GetOutputPort("control")
+    states, vectors = _plant_states(log, order), log.rows("belief")
+    times = np.empty(log.samples)
+    for k in range(log.samples):
+        state_port.FixValue(context, states[k])
+        belief_port.FixValue(context, vectors[k])
+        start = time.perf_counter()
+        control.Eval(context)
+        times[k] = time.perf_counter() - start
+    return float(1e6 * np.median(times))
+
+
+def simulate_stt(scenario: Scenario) -> ControllerRun:
+    """The STT closed loop (:func:`stt_drake.run.simulate`) and its step time."""
+    result = simulate(scenario)
+    limits = result.metrics.get("limits", {}).values()
+    finished = result.metrics["stop_reason"] is None and all(r["holds"] for r in limits)
+    return ControllerRun(result.log, finished, stt_step_time_us(scenario, result.log))
+
+
+@contextlib.contextmanager
+def _native_stdout_silenced() -> Iterator[None]:
+    """Send the process's stdout (file descriptor 1) to /dev/null: OSQP's C code prints
+    "Polishing not needed ..." there on some solves, and the command's output is its table."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, "w") as sink:
+            os.dup2(sink.fileno(), 1)
+            yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+def simulate_baseline(scenario: Scenario, controller: str, solver: str = "osqp") -> ControllerRun:
+    """The baseline `controller`'s closed loop for `scenario.duration` (the scenario's
+    SimulatorConfig); a run the Simulator stops with an exception keeps what was logged."""
+    built = build_baseline_diagram(scenario, controller, solver)
+    simulator = Simulator(built.diagram)
+    ApplySimulatorConfig(scenario.simulator, simulator)
+    simulator.get_mutable_integrator().set_maximum_step_size(
+        scenario.simulator.max_step_size * (1.0 + MAX_STEP_SLACK)
+    )
+    finished = True
+    try:
+        with _native_stdout_silenced():
+            simulator.Initialize()
+            simulator.AdvanceTo(scenario.duration)
+    except Exception:  # a failed run is a result of the comparison, not an error
+        finished = False
+    context = simulator.get_context()
+    logs = {name: sink.FindLog(context) for name, sink in built.loggers.items()}
+    samples = min(log.num_samples() for log in logs.values())
+    data = {name: log.data()[:, :samples].T.copy() for name, log in logs.items()}
+    log = RunLog(
+        {
+            "name": np.array(scenario.name),
+            "t": logs["output"].sample_times()[:samples].copy(),
+            "output": data["output"],
+            "center": data["output"],
+            "radius": np.zeros(samples),
+            "belief": data["belief"],
+            "control": data["control"],
+            "dimension": np.array(scenario.dimension),
+            "start": np.asarray(scenario.start, dtype=float),
+            "initial_set_radius": np.array(scenario.initial_set_radius),
+            "target": np.asarray(scenario.target, dtype=float),
+            "target_set_radius": np.array(scenario.target_set_radius),
+            "obstacle_radius": built.task.radius,
+            "epsilon": built.task.epsilon,
+            "p_d": built.task.p_d,
+            "full_covariance": np.array(built.belief_source.full_covariance),
+        }
+    )
+    system = built.controller
+    if controller == "cbf":
+        controller_context = system.GetMyContextFromRoot(context)
+        return ControllerRun(
+            log, finished, system.median_step_time_us(), system.infeasible_count(controller_context)
+        )
+    order = system.GetInputPort("plant_state").size() // scenario.dimension
+    return ControllerRun(log, finished, _port_step_time_us(system, log, order))
+
+
+def _worst_obstacle(summary: dict[str, Any]) -> dict[str, Any]:
+    """The campaign's obstacle entry with the highest worst-time output collision
+    frequency (ties: the highest upper bound)."""
+    return max(
+        summary["obstacles"],
+        key=lambda o: (o["worst_collision_frequency"], o["clopper_pearson_upper_99"]),
+    )
+
+
+def comparison_row(
+    controller: str, run: ControllerRun, campaign: dict[str, Any], model_error: str | None
+) -> dict[str, Any]:
+    """The comparison.json row of one controller (:data:`ROW_KEYS`, module docstring)."""
+    log = run.log
+    t_reach = output_reach_time(log.t, log.output, log.target, log.target_set_radius)
+    worst = _worst_obstacle(campaign)
+    steps = np.linalg.norm(np.diff(log.output, axis=0), axis=1)
+    row = {
+        "controller": controller,
+        "model_error": model_error,
+        "success_rate": 1.0 if run.finished and t_reach is not None else 0.0,
+        "worst_collision_frequency": worst["worst_collision_frequency"],
+        "clopper_pearson_lower_99": worst["clopper_pearson_lower_99"],
+        "clopper_pearson_upper_99": worst["clopper_pearson_upper_99"],
+        "certified": all(o["verdict"] == CERTIFIED for o in campaign["obstacles"]),
+        "t_reach_s": t_reach,
+        "path_length_m": float(steps.sum()),
+        "min_clearance_m": min_clearance(log),
+        "step_us_median": run.step_us,
+        "qp_infeasible_count": run.qp_infeasible_count,
+    }
+    return {key: row[key] for key in ROW_KEYS}
+
+
+def _check_input(
+    scenario: Scenario,
+    controllers: Sequence[str],
+    runs: int,
+    out_dir: Path,
+    workers: int | None,
+    solver: str,
+) -> None:
+    """Refuse bad input before any work (:class:`CompareError`, naming the option)."""
+    unknown = [c for c in controllers if c not in CONTROLLERS]
+    if not controllers or unknown:
+        raise CompareError(
+            f"--controllers: each must be one of {', '.join(CONTROLLERS)} (got "
+            f"{', '.join(map(repr, unknown or controllers)) or 'none'})"
+        )
+    if len(set(controllers)) != len(controllers):
+        raise CompareError(f"--controllers: each controller once (got {', '.join(controllers)})")
+    if any(c in BASELINES for c in controllers):
+        try:
+            nominal_plant(scenario)
+        except BaselineError as error:
+            raise CompareError(str(error)) from None
+    if runs < 1:
+        raise CompareError(f"--runs: must be ≥ 1 (got {runs})")
+    if workers is not None and workers < 1:
+        raise CompareError(f"--workers: must be ≥ 1 (got {workers})")
+    if solver not in SOLVERS:
+        raise CompareError(f"--solver: must be one of {', '.join(SOLVERS)} (got {solver!r})")
+    reason = unwritable_reason(out_dir)
+    if reason is not None:
+        raise CompareError(f"--out: {out_dir} {reason}")
+
+
+def _variants(scenario: Scenario, model_error: bool) -> list[tuple[str | None, Scenario]]:
+    """The nominal scenario, then (with `model_error`) each perturbation of its plant."""
+    variants: list[tuple[str | None, Scenario]] = [(None, scenario)]
+    if model_error:
+        for name, factors in MODEL_ERRORS[type(scenario.plant)]:
+            changes = {
+                key: factor * getattr(scenario.plant, key) for key, factor in factors.items()
+            }
+            variants.append((name, replace(scenario, plant=replace(scenario.plant, **changes))))
+    return variants
+
+
+def _folder_name(model_error: str) -> str:
+    """A model-error name as a folder name ("mass x0.5" → "mass_x0.5")."""
+    return model_error.replace(" ", "_")
+
+
+def compare(
+    scenario_path: str | Path,
+    controllers: Sequence[str],
+    runs: int,
+    out_dir: Path,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    model_error: bool = False,
+    solver: str = "osqp",
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Compare `controllers` on the scenario file `scenario_path` (module docstring) and
+    write comparison.json, comparison.md and comparison.png into `out_dir`; return the
+    comparison.json document.
+
+    Raises:
+        CompareError: bad input (an option, the scenario, the folder), before any work.
+        CampaignStoppedError: a campaign could not finish.
+    """
+    from stt_drake.build import load_scenario
+    from stt_drake.config import ScenarioError
+
+    path = Path(scenario_path)
+    try:
+        scenario = load_scenario(path)
+    except ScenarioError as error:
+        raise CompareError(f"SCENARIO: bad scenario {path}: {error}") from None
+    _check_input(scenario, controllers, runs, out_dir, workers, solver)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    ordered = [c for c in CONTROLLERS if c in controllers]
+    rows, figure_runs = [], {}
+    variants = _variants(scenario, model_error)
+    for name, variant in variants:
+        folder = out_dir if name is None else out_dir / "model_error" / _folder_name(name)
+        for controller in ordered:
+            if controller == "stt":
+                run = simulate_stt(variant)
+            else:
+                run = simulate_baseline(variant, controller, solver)
+            try:
+                outcome = run_campaign(
+                    CampaignSpec(scenario=str(path), runs=runs),
+                    folder / controller,
+                    workers=workers,
+                    scheduler=scheduler,
+                    progress=progress,
+                    closed_loop=ClosedLoop.from_log(run.log),
+                )
+            except CampaignError as error:
+                raise CompareError(str(error)) from None
+            rows.append(comparison_row(controller, run, outcome.summary, name))
+            if name is None:
+                figure_runs[controller] = run.log
+    document = {
+        "scenario": scenario.name,
+        "scenario_path": str(path),
+        "runs": runs,
+        "solver": solver,
+        "controllers": ordered,
+        "model_errors": [name for name, _ in variants[1:]],
+        "rows": rows,
+    }
+    write_json(out_dir / COMPARISON_FILE, document)
+    (out_dir / TABLE_FILE).write_text(comparison_table(rows) + "\n")
+    figure = plot_comparison(figure_runs, rows)
+    figure.savefig(out_dir / FIGURE_FILE, dpi=120)
+    return document
+
+
+def _cell(value: Any, digits: int = 3) -> str:
+    if value is None:
+        return "—"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return f"{value:.{digits}g}" if math.isfinite(value) else str(value)
+    return str(value)
+
+
+#: The table's columns: (header, row key).
+_COLUMNS = (
+    ("controller", "controller"),
+    ("model error", "model_error"),
+    ("success", "success_rate"),
+    ("worst collision freq.", "worst_collision_frequency"),
+    ("99 % CP lower", "clopper_pearson_lower_99"),
+    ("99 % CP upper", "clopper_pearson_upper_99"),
+    ("certified", "certified"),
+    ("t_reach (s)", "t_reach_s"),
+    ("path (m)", "path_length_m"),
+    ("min clearance (m)", "min_clearance_m"),
+    ("step (µs)", "step_us_median"),
+    ("QP infeasible", "qp_infeasible_count"),
+)
+
+
+def comparison_table(rows: Sequence[dict[str, Any]]) -> str:
+    """The rows as a markdown table (comparison.md, and what the command prints)."""
+    lines = [
+        "| " + " | ".join(header for header, _ in _COLUMNS) + " |",
+        "|" + "|".join("---" for _ in _COLUMNS) + "|",
+    ]
+    for row in rows:
+        lines.append("| " + " | ".join(_cell(row[key]) for _, key in _COLUMNS) + " |")
+    return "\n".join(lines)
+
+
+#: The metrics the figure's bar charts show: (row key, title).
+_BARS = (
+    ("success_rate", "success"),
+    ("worst_collision_frequency", "worst collision frequency (99 % CP)"),
+    ("t_reach_s", "t_reach (s)"),
+    ("path_length_m", "path length (m)"),
+    ("min_clearance_m", "min clearance (m)"),
+    ("step_us_median", "step (µs, median)"),
+)
+
+
+def plot_comparison(logs: dict[str, RunLog], rows: Sequence[dict[str, Any]]) -> Any:
+    """Left: each controller's output path (x-y plane) over the obstacles' means and radii
+    at a few times, the start and the target set; right: a bar per row and metric (a
+    missing value, e.g. t_reach never, is left empty)."""
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Circle
+
+    figure = Figure(figsize=(15, 6.5), layout="constrained")
+    left, right = figure.subfigures(1, 2, width_ratios=[1.0, 1.4])
+    axes = left.subplots()
+    reference = next(iter(logs.values()))
+    indices = np.linspace(0, reference.samples - 1, _FIGURE_TIMES).astype(int)
+    for shade, k in enumerate(indices):
+        alpha = 0.15 + 0.6 * shade / max(len(indices) - 1, 1)
+        for j in np.flatnonzero(reference.active[k]):
+            mean = reference.mean[k, j]
+            axes.add_patch(
+                Circle(mean[:2], reference.obstacle_radius[k, j], color="grey", alpha=alpha)
+            )
+        axes.plot(
+            [], [], color="grey", alpha=alpha, lw=6, label=f"obstacles t = {reference.t[k]:.1f} s"
+        )
+    for name, log in logs.items():
+        axes.plot(log.output[:, 0], log.output[:, 1], lw=1.8, label=name)
+    axes.add_patch(
+        Circle(reference.target[:2], reference.target_set_radius, fill=False, ls="--", color="k")
+    )
+    axes.plot(*reference.start[:2], "ko", label="start")
+    axes.set_aspect("equal")
+    axes.set_xlabel("x (m)")
+    axes.set_ylabel("y (m)")
+    axes.set_title(
+        f"{reference.name}: output paths" + (" (x-y)" if reference.dimension == 3 else "")
+    )
+    axes.legend(fontsize="small", loc="best")
+
+    labels = [
+        row["controller"] + (f"\n{row['model_error']}" if row["model_error"] else "")
+        for row in rows
+    ]
+    positions = np.arange(len(rows))
+    for bar_axes, (key, title) in zip(right.subplots(2, 3).ravel(), _BARS, strict=True):
+        values = np.array([np.nan if row[key] is None else row[key] for row in rows], dtype=float)
+        error = None
+        if key == "worst_collision_frequency":
+            lower = np.array([row["clopper_pearson_lower_99"] for row in rows])
+            upper = np.array([row["clopper_pearson_upper_99"] for row in rows])
+            error = np.vstack([values - lower, upper - values])
+        bar_axes.bar(positions, values, yerr=error, capsize=3, color="C0")
+        bar_axes.set_xticks(positions, labels, fontsize="x-small")
+        bar_axes.set_title(title, fontsize="small")
+    return figure
