@@ -349,3 +349,24 @@ def test_sensor_draws_are_reproducible_and_per_index():
     assert not np.array_equal(first.position, other.position)
     with pytest.raises(ValueError, match="longer horizon"):
         one.measure(one.sample_count, truth, np.zeros(2))
+
+
+def test_a_shorter_horizon_draws_the_start_of_a_longer_one():
+    """Sensor noise and dropouts (and the truth) drawn for a 2 s run are the first 2 s of
+    the draws for a 5 s run with the same seed: shortening a run does not change it."""
+    noise = np.array([[0.01, 0.004], [0.004, 0.02]])
+    short, long = (
+        SensorModel(3, 2, 0.1, horizon, noise, 0.3, np.inf, np.random.default_rng(7))
+        for horizon in (2.0, 5.0)
+    )
+    truth = np.arange(6.0).reshape(3, 2)
+    for index in range(short.sample_count):
+        a = short.measure(index, truth, np.zeros(2))
+        b = long.measure(index, truth, np.zeros(2))
+        np.testing.assert_array_equal(a.detected, b.detected)
+        np.testing.assert_array_equal(a.position, b.position)
+    paths = [
+        draw_truth_deviation(3, 2, 0.1, 0.05, horizon, np.random.default_rng(7))
+        for horizon in (2.0, 5.0)
+    ]
+    np.testing.assert_array_equal(paths[0].deviation(1.93), paths[1].deviation(1.93))

@@ -35,6 +35,12 @@ from stt_drake.campaign.backends import (
     execute,
     open_backend,
 )
+from stt_drake.campaign.end_to_end import (
+    end_to_end_failed,
+    end_to_end_task,
+    is_end_to_end_record,
+    logged_times,
+)
 from stt_drake.campaign.folder import (
     RUNS_FILE,
     SPEC_FILE,
@@ -99,6 +105,11 @@ def _load_checked_scenario(spec: CampaignSpec, text: str, name: str) -> Any:
                 "scenario.random_obstacles: a randomisation campaign needs a random_obstacles "
                 "section with count > 0 or a count_range"
             )
+        if spec.kind == "end-to-end" and schema.perception is None:
+            raise CampaignError(
+                "scenario.perception: an end-to-end campaign needs a perception section "
+                "(true obstacles, sensor, tracker; see diagrams/omni_tracked.yaml)"
+            )
         return prepare_scenario(schema, run_seed(spec.seed, 0) if randomising else None)
     except ScenarioError as error:
         if randomising and isinstance(error, AssumptionError):
@@ -156,7 +167,8 @@ def run_campaign(
     text, name = _scenario_text(path), path.stem
     scenario = _load_checked_scenario(spec, text, name)
     text_hash = hashlib.sha256(text.encode()).hexdigest()
-    preload = ["stt_drake.campaign", *(["stt_drake.run"] if spec.kind == "randomisation" else [])]
+    simulating = spec.kind in ("randomisation", "end-to-end")
+    preload = ["stt_drake.campaign", *(["stt_drake.run"] if simulating else [])]
     backend = open_backend(workers, scheduler, preload, dask_timeout)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -186,7 +198,14 @@ def _run_locked(
     start = time.perf_counter()
     closed_loop_summary: dict[str, Any] | None = None
     randomising = spec.kind == "randomisation"
-    if not randomising:
+    if spec.kind == "end-to-end":
+        steps, count = logged_times(scenario), len(scenario.obstacles)
+        task, task_args = end_to_end_task, (text, name, steps)
+        size, failed, label = chunk_size or 1, end_to_end_failed, "collided"
+
+        def shaped(record: Record) -> bool:
+            return is_end_to_end_record(record, count, steps)
+    elif not randomising:
         closed_loop, closed_loop_summary = _closed_loop(scenario, out_dir, closed_loop, resume)
         task: Callable[..., list[Record]] = sample_true_obstacles
         task_args: tuple[Any, ...] = (closed_loop, spec.motion, spec.tau)
@@ -267,6 +286,7 @@ def _run_locked(
         closed_loop_summary,
         figures,
         malformed,
+        scenario if spec.kind == "end-to-end" else None,
     )
     return CampaignOutcome(summary, out_dir, finished)
 

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from stt_drake.campaign.end_to_end import logged_times
 from stt_drake.campaign.randomisation import draw_failed, failure_name
 from stt_drake.campaign.sampling import CHECKS, ClosedLoop, output_collided
 from stt_drake.campaign.spec import CampaignSpec
@@ -63,43 +64,119 @@ def summarise_true_obstacles(loop: ClosedLoop, records: Sequence[dict[str, Any]]
     model = loop.collision_probability()
     obstacles = []
     for j in range(loop.count):
-        allowed = 1.0 - float(loop.epsilon[j])
         entry: dict[str, Any] = {"index": j}
         for c, check in enumerate(CHECKS):
-            verdict = simultaneous_verdict(counts[c, j], runs, allowed, member, model[check][:, j])
-            record = {
-                "epsilon": float(loop.epsilon[j]),
-                "allowed_collision_probability": allowed,
-                "worst_collision_frequency": verdict.frequency,
-                "collisions_at_worst": int(counts[c, j, verdict.index]),
-                "t_worst": float(loop.t[verdict.index]),
-                "clopper_pearson_upper_99": verdict.upper,
-                "clopper_pearson_lower_99": verdict.lower,
-                "verdict": verdict.verdict,
-                "runs_to_certify": verdict.runs_to_certify,
-                "model_collision_probability_at_t_worst": float(model[check][verdict.index, j]),
-                "model_worst_collision_probability": float(np.max(model[check][:, j])),
-            }
+            verdict, record = _verdict(
+                counts[c, j], runs, loop.epsilon[j], loop.t, member, model[check][:, j]
+            )
+            record["model_collision_probability_at_t_worst"] = float(model[check][verdict.index, j])
+            record["model_worst_collision_probability"] = float(np.max(model[check][:, j]))
             if check == "output":
                 entry.update(record)
             else:
                 entry["tube"] = record
         obstacles.append(entry)
-    holds = not any(o["verdict"] == VIOLATED or o["tube"]["verdict"] == VIOLATED for o in obstacles)
     return {
-        "holds": holds,
-        "procedure": {
-            "name": "simultaneous-clopper-pearson-bonferroni",
-            "confidence": CONFIDENCE,
-            "family_size": family,
-            "member_confidence": member,
-            "logged_times": steps,
-            "description": PROCEDURE,
-        },
+        "holds": _holds(obstacles),
+        "procedure": _procedure(family, member, steps),
         "runs_with_output_collision": sum(output_collided(r) for r in records),
         "runs_with_tube_collision": sum(any(r["tube"]) for r in records),
         "obstacles": obstacles,
     }
+
+
+def _verdict(
+    counts: np.ndarray,
+    runs: int,
+    epsilon: float,
+    times: np.ndarray,
+    member: float,
+    tie_break: np.ndarray | None = None,
+) -> tuple[Any, dict[str, Any]]:
+    """The simultaneous verdict on one obstacle and check, and its campaign.json record."""
+    allowed = 1.0 - float(epsilon)
+    verdict = simultaneous_verdict(counts, runs, allowed, member, tie_break)
+    return verdict, {
+        "epsilon": float(epsilon),
+        "allowed_collision_probability": allowed,
+        "worst_collision_frequency": verdict.frequency,
+        "collisions_at_worst": int(counts[verdict.index]),
+        "t_worst": float(times[verdict.index]),
+        "clopper_pearson_upper_99": verdict.upper,
+        "clopper_pearson_lower_99": verdict.lower,
+        "verdict": verdict.verdict,
+        "runs_to_certify": verdict.runs_to_certify,
+    }
+
+
+def _holds(obstacles: Sequence[dict[str, Any]]) -> bool:
+    """No obstacle's output or tube verdict is `violated`."""
+    return not any(o["verdict"] == VIOLATED or o["tube"]["verdict"] == VIOLATED for o in obstacles)
+
+
+def _procedure(family: int, member: float, steps: int) -> dict[str, Any]:
+    return {
+        "name": "simultaneous-clopper-pearson-bonferroni",
+        "confidence": CONFIDENCE,
+        "family_size": family,
+        "member_confidence": member,
+        "logged_times": steps,
+        "description": PROCEDURE,
+    }
+
+
+def summarise_end_to_end(
+    records: Sequence[dict[str, Any]], epsilon: np.ndarray, times: np.ndarray
+) -> dict[str, Any]:
+    """Per obstacle: worst-time collision frequency with the TRUE obstacles, simultaneous CP
+    bounds and verdict (as the true-obstacle kind), the belief's calibration (fraction of
+    tracked logged times with the true centre in the belief's 95 % ellipsoid, with its 99 %
+    CP interval), and how the runs went."""
+    runs, steps, count = len(records), len(times), len(epsilon)
+    counts = collision_counts(records, count, steps)
+    family = len(CHECKS) * count * steps
+    member = family_confidence(CONFIDENCE, family)
+    simulated = [r for r in records if r["status"] == "simulated"]
+    obstacles = []
+    for j in range(count):
+        entry: dict[str, Any] = {"index": j}
+        for c, check in enumerate(CHECKS):
+            record = _verdict(counts[c, j], runs, epsilon[j], times, member)[1]
+            if check == "output":
+                entry.update(record)
+            else:
+                entry["tube"] = record
+        inside = sum(r["inside"][j] for r in simulated)
+        tracked = sum(r["tracked"][j] for r in simulated)
+        entry["calibration_95"] = inside / tracked if tracked else None
+        obstacles.append(entry)
+    inside = sum(sum(r["inside"]) for r in simulated)
+    tracked = sum(sum(r["tracked"]) for r in simulated)
+    lower, upper = clopper_pearson(inside, tracked, CONFIDENCE) if tracked else (None, None)
+    return {
+        "holds": _holds(obstacles),
+        "procedure": _procedure(family, member, steps),
+        "simulated_runs": len(simulated),
+        "error_runs": runs - len(simulated),
+        "runs_with_output_collision": sum(any(r["output"]) for r in records),
+        "runs_with_tube_collision": sum(any(r["tube"]) for r in records),
+        "guarantees_held_fraction": _fraction(simulated, "holds"),
+        "reached_fraction": _fraction(simulated, "reached"),
+        "calibration": {
+            "level": 0.95,
+            "fraction_inside": inside / tracked if tracked else None,
+            "clopper_pearson_lower_99": None if lower is None else float(lower),
+            "clopper_pearson_upper_99": None if upper is None else float(upper),
+            "tracked_times": tracked,
+            "note": "logged times are correlated within a run: the interval treats them as "
+            "independent and is too narrow; read it as descriptive",
+        },
+        "obstacles": obstacles,
+    }
+
+
+def _fraction(records: Sequence[dict[str, Any]], key: str) -> float | None:
+    return sum(r[key] for r in records) / len(records) if records else None
 
 
 def _distribution(values: Sequence[float]) -> dict[str, float | None]:
@@ -164,16 +241,22 @@ def write_summary(
     closed_loop_summary: dict[str, Any] | None = None,
     figures: bool = True,
     malformed_lines: int = 0,
+    scenario: Any = None,
 ) -> dict[str, Any]:
     """Summarise the finished runs, write campaign.json (strict JSON) and the figure, and
     return the summary.
 
     `started` is the campaign's ``time.perf_counter()`` start; `closed_loop` and its
-    summary belong to a true-obstacle campaign; `malformed_lines` counts the lines of
-    ``runs.jsonl`` a resume skipped (their runs were redone).
+    summary belong to a true-obstacle campaign, `scenario` to an end-to-end one;
+    `malformed_lines` counts the lines of ``runs.jsonl`` a resume skipped (their runs were
+    redone).
     """
     randomising = spec.kind == "randomisation"
-    if randomising:
+    if spec.kind == "end-to-end":
+        epsilon = np.array([o.epsilon for o in scenario.obstacles], dtype=float)
+        times = scenario.log_period * np.arange(logged_times(scenario))
+        body = summarise_end_to_end(records, epsilon, times)
+    elif randomising:
         body = summarise_randomisation(records)
     else:
         body = summarise_true_obstacles(closed_loop, records)
@@ -193,7 +276,10 @@ def write_summary(
     }
     write_json(out_dir / SUMMARY_FILE, summary)
     if figures:
-        if randomising:
+        if spec.kind == "end-to-end":
+            figure = plot_end_to_end(summary, records, epsilon, times)
+            file = "end_to_end.png"
+        elif randomising:
             figure, file = plot_randomisation(summary, records), "randomisation.png"
         else:
             figure, file = plot_collision_frequency(closed_loop, records), "collision_frequency.png"
@@ -235,6 +321,41 @@ def plot_collision_frequency(loop: ClosedLoop, records: Sequence[dict[str, Any]]
     return figure
 
 
+def plot_end_to_end(
+    summary: dict[str, Any],
+    records: Sequence[dict[str, Any]],
+    epsilon: np.ndarray,
+    times: np.ndarray,
+) -> Any:
+    """Collision frequency with the TRUE obstacles over time per obstacle (output), with
+    its simultaneous 99 % CP band, against 1 − ε_j; and the belief's calibration per
+    obstacle against 0.95."""
+    from matplotlib.figure import Figure
+
+    from stt_drake.plotting import PALETTE
+
+    runs, count = len(records), len(epsilon)
+    counts = collision_counts(records, count, len(times))
+    member = summary["procedure"]["member_confidence"]
+    figure = Figure(figsize=(10.0, 3.6), layout="constrained")
+    left, right = figure.subplots(1, 2, width_ratios=[2, 1])
+    for j in range(count):
+        colour = f"C{j % 10}"
+        lower, upper = clopper_pearson(counts[0, j], runs, member)
+        left.fill_between(times, lower, upper, color=colour, alpha=0.12, linewidth=0)
+        left.plot(times, counts[0, j] / runs, color=colour, lw=1.2, label=f"obstacle {j}")
+        left.axhline(1.0 - epsilon[j], color=colour, ls="--", lw=0.8)
+    left.set(xlabel="t (s)", ylabel="P(‖y − O_true‖ < r_o)", title="collisions (dashed: 1 − ε_j)")
+    left.legend(fontsize=7)
+    calibration = [o["calibration_95"] or 0.0 for o in summary["obstacles"]]
+    right.bar(range(count), calibration, color=PALETTE["tube"])
+    right.axhline(0.95, color=PALETTE["reference"], ls="--", lw=1.0)
+    right.set(xlabel="obstacle", ylabel="true centre in 95 % ellipsoid", ylim=(0.0, 1.0))
+    right.set_xticks(range(count))
+    figure.suptitle(f"end-to-end campaign, {runs} runs (bands: simultaneous 99 % CP)")
+    return figure
+
+
 def plot_randomisation(summary: dict[str, Any], records: Sequence[dict[str, Any]]) -> Any:
     """t_c histogram and every run's worst margin per guarantee (red: failed runs)."""
     from matplotlib.figure import Figure
@@ -272,13 +393,27 @@ def report(summary: dict[str, Any]) -> str:
         f"{summary['kind']} campaign on {summary['scenario']}: {summary['runs']} runs, "
         f"seed {summary['seed']}, {summary['wall_time_s']:.1f} s wall"
     ]
-    if summary["kind"] == "true-obstacles":
-        loop = summary["closed_loop"]
+    if summary["kind"] == "end-to-end":
+        calibration = summary["calibration"]
+        fraction = calibration["fraction_inside"]
         lines.append(
-            f"  closed loop simulated {loop['simulations']} time(s); true obstacles: "
-            f"{summary['true_obstacle_motion']}"
-            + (f" (OU, τ = {summary['ou_tau_s']:g} s)" if summary["ou_tau_s"] else "")
+            f"  simulated {summary['simulated_runs']}, errors {summary['error_runs']}; every "
+            f"guarantee held in {summary['guarantees_held_fraction']} of runs, target reached "
+            f"in {summary['reached_fraction']}"
         )
+        lines.append(
+            "  calibration: true centre inside the belief's 95 % ellipsoid at "
+            + ("n/a" if fraction is None else f"{fraction:.4f}")
+            + " of tracked logged times (expected 0.95)"
+        )
+    if summary["kind"] in ("true-obstacles", "end-to-end"):
+        if summary["kind"] == "true-obstacles":
+            loop = summary["closed_loop"]
+            lines.append(
+                f"  closed loop simulated {loop['simulations']} time(s); true obstacles: "
+                f"{summary['true_obstacle_motion']}"
+                + (f" (OU, τ = {summary['ou_tau_s']:g} s)" if summary["ou_tau_s"] else "")
+            )
         lines.append(
             f"  simultaneous 99 % Clopper-Pearson over {summary['procedure']['family_size']} "
             "(check × obstacle × time) intervals"

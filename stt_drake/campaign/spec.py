@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 from stt_drake.campaign.sampling import MOTIONS
 
-KINDS = ("true-obstacles", "randomisation")
+KINDS = ("true-obstacles", "randomisation", "end-to-end")
 
 
 class CampaignError(ValueError):

@@ -174,11 +174,15 @@ class SensorModel:
         self.period = period
         self.sensing_range = sensing_range
         samples = math.floor(horizon / period + _SPAN_SLACK) + 1
+        # Noise and dropouts from streams of their own, each filled sample by sample: the
+        # first k samples are the same whatever the horizon (a shorter run is the start of
+        # a longer one).
+        noise_draws, dropout_draws = rng.spawn(2)
         self._noise = (
-            rng.standard_normal((samples, count, dimension))
+            noise_draws.standard_normal((samples, count, dimension))
             @ _square_root(np.asarray(noise_covariance, dtype=float)).T
         )
-        self._dropped = rng.random((samples, count)) < dropout_probability
+        self._dropped = dropout_draws.random((samples, count)) < dropout_probability
 
     @property
     def sample_count(self) -> int:
