@@ -1,6 +1,6 @@
 """`stt-drake campaign`: Monte Carlo verification of the probabilistic guarantee.
 
-Two kinds of campaign:
+Three kinds of campaign:
 
 ``true-obstacles``
     Sample the *true* obstacle centres from the belief, O_j(t) = μ_j(t) + σ_j(t)·ξ_j, and
@@ -14,6 +14,11 @@ Two kinds of campaign:
     Each run loads the scenario with its own seed, which redraws the `random_obstacles`
     field (draws breaking the paper's assumptions are rejected by the loader and counted),
     simulates it and checks every guarantee. Failing draws are kept as scenario YAML.
+``end-to-end``
+    For a scenario with perception in the loop: each run draws the obstacles' process
+    noise and the sensor's noise and dropouts from its seed, simulates truth, sensor,
+    tracker, tube, controller and plant, and counts collisions with the TRUE obstacles and
+    the belief's calibration (:mod:`~stt_drake.campaign.end_to_end`).
 
 Runs go through a :class:`concurrent.futures.Executor`: a local process pool, or a Dask
 ``distributed`` client. Each finished run is appended to ``runs.jsonl``; ``--resume`` skips
