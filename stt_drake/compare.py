@@ -32,12 +32,9 @@ Plus ``comparison.md`` (the table) and ``comparison.png`` (paths and metrics).
 
 from __future__ import annotations
 
-import contextlib
 import math
-import os
-import sys
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -179,21 +176,6 @@ def simulate_stt(scenario: Scenario) -> ControllerRun:
     return ControllerRun(result.log, finished, stt_step_time_us(scenario, result.log))
 
 
-@contextlib.contextmanager
-def _native_stdout_silenced() -> Iterator[None]:
-    """Send the process's stdout (file descriptor 1) to /dev/null: OSQP's C code prints
-    "Polishing not needed ..." there on some solves, and the command's output is its table."""
-    sys.stdout.flush()
-    saved = os.dup(1)
-    try:
-        with open(os.devnull, "w") as sink:
-            os.dup2(sink.fileno(), 1)
-            yield
-    finally:
-        os.dup2(saved, 1)
-        os.close(saved)
-
-
 def simulate_baseline(scenario: Scenario, controller: str, solver: str = "osqp") -> ControllerRun:
     """The baseline `controller`'s closed loop for `scenario.duration` (the scenario's
     SimulatorConfig); a run the Simulator stops with an exception keeps what was logged."""
@@ -205,9 +187,8 @@ def simulate_baseline(scenario: Scenario, controller: str, solver: str = "osqp")
     )
     finished = True
     try:
-        with _native_stdout_silenced():
-            simulator.Initialize()
-            simulator.AdvanceTo(scenario.duration)
+        simulator.Initialize()
+        simulator.AdvanceTo(scenario.duration)
     except Exception:  # a failed run is a result of the comparison, not an error
         finished = False
     context = simulator.get_context()

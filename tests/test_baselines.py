@@ -111,8 +111,8 @@ def _projection(a, b, nominal):
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_qp_matches_the_closed_form_projection(solver):
     """Random one-row QPs (box inactive). Tolerance 1e-6: both solvers run at tolerances of
-    1e-9 (OSQP, then polished to the active set) and 1e-10 (Clarabel) on a problem of unit
-    scale, so 1e-6 leaves three orders of margin and still catches a wrong row or sign."""
+    1e-9 (OSQP, unpolished) and 1e-10 (Clarabel) on a problem of unit scale, so 1e-6 leaves
+    three orders of margin and still catches a wrong row or sign."""
     rng = np.random.default_rng(11)
     qp = CbfQp(dimension=2, rows=1, input_limit=np.full(2, 10.0), solver=solver)
     for _ in range(50):
@@ -123,6 +123,21 @@ def test_qp_matches_the_closed_form_projection(solver):
         assert step.success
         assert step.feasible
         np.testing.assert_allclose(step.command, _projection(a, b, nominal), atol=1e-6)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_qp_solves_print_nothing(solver, capfd):
+    """A QP whose optimum activates no constraint (OSQP with polishing on prints "Polishing
+    not needed ..." from its C code, file descriptor 1) and one with an active row: nothing
+    reaches stdout or stderr."""
+    qp = CbfQp(dimension=2, rows=1, input_limit=np.full(2, 10.0), solver=solver)
+    interior = qp.solve(np.array([0.1, 0.1]), np.array([[1.0, 0.0]]), np.array([-5.0]))
+    active = qp.solve(np.array([0.1, 0.1]), np.array([[1.0, 0.0]]), np.array([1.0]))
+    assert interior.feasible and active.feasible
+    np.testing.assert_allclose(interior.command, [0.1, 0.1], atol=1e-6)
+    np.testing.assert_allclose(active.command, [1.0, 0.1], atol=1e-6)
+    captured = capfd.readouterr()
+    assert captured.out == "" and captured.err == ""
 
 
 @pytest.mark.parametrize("solver", SOLVERS)

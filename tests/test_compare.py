@@ -118,6 +118,7 @@ def test_compare_writes_one_row_per_controller(compared):
     table = (out / "comparison.md").read_text()
     assert table.count("\n| ") == 3 and "| cbf |" in table
     assert "| stt |" in done.stdout
+    assert "Polishing" not in done.stdout  # OSQP's C code prints nothing (polishing off)
     assert (out / "comparison.png").stat().st_size > 10_000
 
 

@@ -28,10 +28,14 @@ from stt_drake.core.baselines import (
 )
 from stt_drake.core.belief import GaussianBelief, ObstacleTask, belief_size, largest_sigma
 
-#: Solver options for tight tolerances (the QP is tiny, so tight costs little). Drake runs
-#: OSQP with solution polishing on by default.
+#: Solver options for tight tolerances (the QP is tiny, so tight costs little). OSQP's
+#: solution polishing is off (`polishing`, OSQP ≥ 1.0's name; Drake rejects the older
+#: `polish`): Drake turns it on by default, and OSQP's C code then prints "Polishing not
+#: needed - no active set detected at optimal point" to stdout whenever no constraint is
+#: active — whatever `verbose` says. At eps = 1e-9 the unpolished ADMM solution is accurate
+#: enough for a command.
 _SOLVER_OPTIONS = {
-    "osqp": {"eps_abs": 1e-9, "eps_rel": 1e-9, "max_iter": 20000},
+    "osqp": {"eps_abs": 1e-9, "eps_rel": 1e-9, "max_iter": 20000, "polishing": 0},
     "clarabel": {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10},
 }
 
