@@ -40,7 +40,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 
 from stt_drake.build.baselines import (
     BASELINES,
@@ -53,7 +52,7 @@ from stt_drake.build.laws import make_funnel_controller, make_tube_law
 from stt_drake.campaign import CampaignError, CampaignSpec, ClosedLoop, run_campaign
 from stt_drake.config import OmniRobot, Quadrotor, Scenario
 from stt_drake.core.statistics import CERTIFIED
-from stt_drake.run import MAX_STEP_SLACK, simulate
+from stt_drake.run import scenario_simulator, simulate
 from stt_drake.runlog import RunLog, unwritable_reason, write_json
 from stt_drake.systems.baselines import PotentialFieldController
 
@@ -180,11 +179,7 @@ def simulate_baseline(scenario: Scenario, controller: str, solver: str = "osqp")
     """The baseline `controller`'s closed loop for `scenario.duration` (the scenario's
     SimulatorConfig); a run the Simulator stops with an exception keeps what was logged."""
     built = build_baseline_diagram(scenario, controller, solver)
-    simulator = Simulator(built.diagram)
-    ApplySimulatorConfig(scenario.simulator, simulator)
-    simulator.get_mutable_integrator().set_maximum_step_size(
-        scenario.simulator.max_step_size * (1.0 + MAX_STEP_SLACK)
-    )
+    simulator = scenario_simulator(built.diagram, scenario)
     finished = True
     try:
         simulator.Initialize()

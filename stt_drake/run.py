@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 from pydrake.geometry import Meshcat
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
+from pydrake.systems.framework import Diagram
 
 from stt_drake.build.diagram import SttDiagram, build_diagram
 from stt_drake.build.feasibility import scenario_warnings
@@ -129,7 +130,15 @@ def make_simulator(
     every step into `tracker` (:meth:`stt_drake.systems.monitor.InvariantMonitor.attach`:
     `strict` stops at the first violation, `watchdog` bounds the step rate, `recoveries`
     collects the recovery episodes)."""
-    simulator = Simulator(built.diagram)
+    simulator = scenario_simulator(built.diagram, scenario)
+    built.monitor.attach(simulator, tracker, strict, watchdog, recoveries)
+    return simulator
+
+
+def scenario_simulator(diagram: Diagram, scenario: Scenario) -> Simulator:
+    """A Simulator of `diagram` with the scenario's SimulatorConfig (and no monitor: the
+    STT loop's is :func:`make_simulator`'s; a baseline's diagram has none)."""
+    simulator = Simulator(diagram)
     ApplySimulatorConfig(scenario.simulator, simulator)
     # Drake never takes a step longer than max_step_size, and a periodic event's time
     # (offset + k·period) can lie one rounding beyond the integrator's t + max_step (a sum
@@ -138,7 +147,6 @@ def make_simulator(
     simulator.get_mutable_integrator().set_maximum_step_size(
         scenario.simulator.max_step_size * (1.0 + MAX_STEP_SLACK)
     )
-    built.monitor.attach(simulator, tracker, strict, watchdog, recoveries)
     return simulator
 
 

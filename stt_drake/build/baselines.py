@@ -27,9 +27,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
+from pydrake.systems.primitives import VectorLogSink
 
-from stt_drake.build.diagram import PLANT_BUILDERS
+from stt_drake.build.diagram import PLANT_BUILDERS, add_loggers
 from stt_drake.config import OmniRobot as OmniRobotConfig
 from stt_drake.config import Quadrotor as QuadrotorConfig
 from stt_drake.config import Scenario
@@ -190,10 +190,7 @@ def build_baseline_diagram(
     builder.Connect(belief, system.GetInputPort("obstacle_belief"))
     builder.Connect(system.GetOutputPort("control"), plant.control_input)
     logged = {"output": plant.output, "belief": belief, "control": system.GetOutputPort("control")}
-    loggers = {}
-    for name, port in logged.items():
-        loggers[name] = LogVectorOutput(port, builder, scenario.log_period)
-        loggers[name].set_name(f"{name}_logger")
+    loggers = add_loggers(builder, logged, scenario.log_period)
     diagram = builder.Build()
     diagram.set_name(f"{scenario.name}_{controller}")
     return BaselineDiagram(diagram, system, source, plant.plant, task, loggers)

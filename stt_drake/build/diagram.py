@@ -297,6 +297,18 @@ PLANT_BUILDERS: dict[type, Callable[[DiagramBuilder, Scenario], PlantHandles]] =
 }
 
 
+def add_loggers(
+    builder: DiagramBuilder, ports: Mapping[str, OutputPort], period: float
+) -> dict[str, VectorLogSink]:
+    """A `LogVectorOutput` named "<name>_logger" on each of `ports`, sampling every
+    `period` seconds."""
+    loggers = {}
+    for name, port in ports.items():
+        loggers[name] = LogVectorOutput(port, builder, period)
+        loggers[name].set_name(f"{name}_logger")
+    return loggers
+
+
 @dataclass
 class PerceptionHandles:
     """The perception chain :func:`add_perception` added."""
@@ -446,10 +458,7 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> SttDiag
         builder.Connect(plant.sequencer.GetOutputPort("target"), tube.GetInputPort("target"))
         extra["task_target"] = plant.sequencer.GetOutputPort("target")
     logged.update(extra)
-    loggers = {}
-    for name, port in logged.items():
-        loggers[name] = LogVectorOutput(port, builder, scenario.log_period)
-        loggers[name].set_name(f"{name}_logger")
+    loggers = add_loggers(builder, logged, scenario.log_period)
     if meshcat is not None:
         add_live_view(
             builder, scenario, meshcat, plant, stt.tube, stt.belief, stt.task, stt.full_covariance

@@ -39,12 +39,18 @@ def logged_times(scenario: Scenario) -> int:
     return round(scenario.duration / scenario.log_period) + 1
 
 
+def _truth(log: RunLog, steps: int) -> tuple[int, np.ndarray]:
+    """(samples, the true centres (samples, m, n)) of the log's first `steps` samples."""
+    samples = min(log.samples, steps)
+    positions = log.rows("true_obstacle_position")[:samples]
+    return samples, positions.reshape(samples, log.count, log.dimension)
+
+
 def true_collisions(log: RunLog, steps: int) -> dict[str, np.ndarray]:
     """Per check, (m, steps) booleans: the output / the tube hit the true obstacle j at
     logged time k; samples past the log's end count as hits (module docstring)."""
-    n, count = log.dimension, log.count
-    samples = min(log.samples, steps)
-    truth = log.rows("true_obstacle_position")[:samples].reshape(samples, count, n)
+    count = log.count
+    samples, truth = _truth(log, steps)
     radius = np.asarray(log["obstacle_radius"], dtype=float)
     reach = {
         "output": (log.output[:samples], np.broadcast_to(radius, (samples, count))),
@@ -62,9 +68,8 @@ def true_collisions(log: RunLog, steps: int) -> dict[str, np.ndarray]:
 def calibration_counts(log: RunLog, steps: int) -> tuple[list[int], list[int]]:
     """Per obstacle, (logged times with the true centre inside the belief's
     :data:`CALIBRATION_LEVEL` ellipsoid, logged times with a track)."""
-    n, count = log.dimension, log.count
-    samples = min(log.samples, steps)
-    truth = log.rows("true_obstacle_position")[:samples].reshape(samples, count, n)
+    n = log.dimension
+    samples, truth = _truth(log, steps)
     error = truth - log.mean[:samples]
     active = log.active[:samples]
     covariance = np.where(active[..., None, None], log.belief_covariance[:samples], np.eye(n))

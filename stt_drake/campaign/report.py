@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from stt_drake.campaign.end_to_end import logged_times
+from stt_drake.campaign.end_to_end import CALIBRATION_LEVEL, logged_times
 from stt_drake.campaign.randomisation import draw_failed, failure_name
 from stt_drake.campaign.sampling import CHECKS, ClosedLoop, output_collided
 from stt_drake.campaign.spec import CampaignSpec
@@ -163,7 +163,7 @@ def summarise_end_to_end(
         "guarantees_held_fraction": _fraction(simulated, "holds"),
         "reached_fraction": _fraction(simulated, "reached"),
         "calibration": {
-            "level": 0.95,
+            "level": CALIBRATION_LEVEL,
             "fraction_inside": inside / tracked if tracked else None,
             "clopper_pearson_lower_99": None if lower is None else float(lower),
             "clopper_pearson_upper_99": None if upper is None else float(upper),
@@ -349,7 +349,7 @@ def plot_end_to_end(
     left.legend(fontsize=7)
     calibration = [o["calibration_95"] or 0.0 for o in summary["obstacles"]]
     right.bar(range(count), calibration, color=PALETTE["tube"])
-    right.axhline(0.95, color=PALETTE["reference"], ls="--", lw=1.0)
+    right.axhline(CALIBRATION_LEVEL, color=PALETTE["reference"], ls="--", lw=1.0)
     right.set(xlabel="obstacle", ylabel="true centre in 95 % ellipsoid", ylim=(0.0, 1.0))
     right.set_xticks(range(count))
     figure.suptitle(f"end-to-end campaign, {runs} runs (bands: simultaneous 99 % CP)")
@@ -404,7 +404,7 @@ def report(summary: dict[str, Any]) -> str:
         lines.append(
             "  calibration: true centre inside the belief's 95 % ellipsoid at "
             + ("n/a" if fraction is None else f"{fraction:.4f}")
-            + " of tracked logged times (expected 0.95)"
+            + f" of tracked logged times (expected {calibration['level']:g})"
         )
     if summary["kind"] in ("true-obstacles", "end-to-end"):
         if summary["kind"] == "true-obstacles":

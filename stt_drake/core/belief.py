@@ -60,6 +60,13 @@ class GaussianBelief:
     def dimension(self) -> int:
         return self.mean.shape[1]
 
+    def per_slot(self, values: np.ndarray, fill: float) -> np.ndarray:
+        """`values` of the active slots (in slot order) spread over every slot, `fill` in
+        the inactive ones."""
+        spread = np.full(self.count, fill)
+        spread[self.active] = values
+        return spread
+
     def to_vector(self) -> np.ndarray:
         """Pack into the port layout of the module docstring."""
         count, n = self.mean.shape

@@ -188,12 +188,11 @@ def evaluate_invariants_slots(
     sample = evaluate_invariants(
         output, tube[:-1], float(tube[-1]), ObstacleBelief.of(belief, task, full_covariance), r_min
     )
-    if belief.active.all():
-        return sample
-    slots = np.flatnonzero(belief.active)
-    output_q, tube_q = np.ones(belief.count), np.ones(belief.count)
-    output_q[slots], tube_q[slots] = sample.output_avoid_probability, sample.tube_avoid_probability
-    return InvariantSample(sample.margins, output_q, tube_q)
+    return InvariantSample(
+        sample.margins,
+        belief.per_slot(sample.output_avoid_probability, 1.0),
+        belief.per_slot(sample.tube_avoid_probability, 1.0),
+    )
 
 
 @dataclass

@@ -163,18 +163,17 @@ class TubeEvaluation:
     quantile_distance: np.ndarray
     theta: np.ndarray
 
-    def in_slots(self, slots: np.ndarray, count: int) -> TubeEvaluation:
-        """This evaluation of the obstacles in `slots` (slot indices, in order) spread over
-        `count` slots; the others read q = 1, d̂ = +∞, θ = 0 (no obstacle there)."""
-        if len(slots) == count:
+    def in_slots(self, belief: GaussianBelief) -> TubeEvaluation:
+        """This evaluation of the active slots of `belief` spread over all its slots; the
+        inactive ones read q = 1, d̂ = +∞, θ = 0 (no obstacle there)."""
+        if belief.active.all():
             return self
-        q, d_hat, theta = np.ones(count), np.full(count, np.inf), np.zeros(count)
-        q[slots], d_hat[slots], theta[slots] = (
-            self.avoid_probability,
-            self.quantile_distance,
-            self.theta,
+        return replace(
+            self,
+            avoid_probability=belief.per_slot(self.avoid_probability, 1.0),
+            quantile_distance=belief.per_slot(self.quantile_distance, np.inf),
+            theta=belief.per_slot(self.theta, 0.0),
         )
-        return replace(self, avoid_probability=q, quantile_distance=d_hat, theta=theta)
 
 
 @dataclass(frozen=True)
@@ -406,11 +405,10 @@ class TubeLaw:
         Σ_j exactly when `full_covariance`), outputs per slot as in
         :meth:`evaluate_packed`."""
         law_belief = ObstacleBelief.of(belief, task, full_covariance)
-        slots = np.flatnonzero(belief.active)
         if circulation is not None:
-            circulation = np.asarray(circulation).reshape(belief.count, -1)[slots]
+            circulation = np.asarray(circulation).reshape(belief.count, -1)[belief.active]
         evaluation = self.evaluate(center, law_belief, prune, circulation)
-        return evaluation.in_slots(slots, belief.count)
+        return evaluation.in_slots(belief)
 
     def _evaluate_numpy(
         self,

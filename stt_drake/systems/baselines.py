@@ -166,17 +166,52 @@ def _chance_margins(task: ObstacleTask, dimension: int) -> np.ndarray:
     return kappa
 
 
-def _active_obstacles(
-    belief: GaussianBelief, radius: np.ndarray, kappa: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Indices of the active slots, their means (k, n) and inflated radii ρ_j = r_o_j +
-    κ_j √λ_max(Σ_j) (k,)."""
-    index = np.flatnonzero(belief.active)
-    rho = radius[index] + kappa[index] * largest_sigma(belief.covariance[index])
-    return index, belief.mean[index], rho
+@dataclass(frozen=True)
+class _Inputs:
+    """What a baseline reads at one instant: the output y (n,), its velocity ẏ (n,; empty
+    for order 1), the belief, and its active slots' indices, means (k, n) and inflated
+    radii ρ_j = r_o_j + κ_j √λ_max(Σ_j) (k,)."""
+
+    y: np.ndarray
+    velocity: np.ndarray
+    belief: GaussianBelief
+    index: np.ndarray
+    mean: np.ndarray
+    rho: np.ndarray
 
 
-class ChanceConstrainedCbfController(LeafSystem):
+class _BaselineController(LeafSystem):
+    """The inputs both baselines share: `plant_state` (order·n) and `obstacle_belief`
+    (GaussianBelief layout, task.count slots), the input limit and the chance margins."""
+
+    def __init__(
+        self,
+        task: ObstacleTask,
+        dimension: int,
+        plant: NominalPlant,
+        input_limit: float | np.ndarray,
+    ) -> None:
+        super().__init__()
+        self._dimension = dimension
+        self._plant = plant
+        self._limit = np.broadcast_to(np.asarray(input_limit, dtype=float), (dimension,)).copy()
+        self._radius = np.asarray(task.radius, dtype=float)
+        self._kappa = _chance_margins(task, dimension)
+        self._state_port = self.DeclareVectorInputPort("plant_state", plant.order * dimension)
+        self._belief_port = self.DeclareVectorInputPort(
+            "obstacle_belief", belief_size(task.count, dimension)
+        )
+
+    def _inputs(self, context: Context) -> _Inputs:
+        n = self._dimension
+        stacked = self._state_port.Eval(context)
+        belief = GaussianBelief.from_vector(self._belief_port.Eval(context), n)
+        index = np.flatnonzero(belief.active)
+        rho = self._radius[index] + self._kappa[index] * largest_sigma(belief.covariance[index])
+        return _Inputs(stacked[:n], stacked[n:], belief, index, belief.mean[index], rho)
+
+
+class ChanceConstrainedCbfController(_BaselineController):
     """Chance-constrained CBF-QP baseline, updated every `period` seconds and held between
     updates (zero-order hold, as on hardware).
 
@@ -223,23 +258,17 @@ class ChanceConstrainedCbfController(LeafSystem):
         fallback: str = "slack",
         slack_penalty: float = 1e4,
     ) -> None:
-        super().__init__()
+        super().__init__(task, dimension, plant, input_limit)
         n, m = dimension, task.count
-        self._dimension, self._count = n, m
-        self._plant = plant
+        self._count = m
         self._goal_seeking = goal_seeking
-        self._limit = np.broadcast_to(np.asarray(input_limit, dtype=float), (n,)).copy()
         self._period = period
         self._rate = rate
-        self._radius = np.asarray(task.radius, dtype=float)
-        self._kappa = _chance_margins(task, n)
         self._qp = CbfQp(n, m, self._limit, solver, fallback, slack_penalty)
         #: Wall time of every update (µs): a diagnostic outside the Context, never read by
         #: the control law.
         self._step_times_us: list[float] = []
 
-        self._state_port = self.DeclareVectorInputPort("plant_state", plant.order * n)
-        self._belief_port = self.DeclareVectorInputPort("obstacle_belief", belief_size(m, n))
         self._control = self.DeclareDiscreteState(n)
         # The previous update's belief: means (m·n), inflated radii (m), active flags (m).
         self._previous = self.DeclareDiscreteState(m * n + 2 * m)
@@ -264,11 +293,9 @@ class ChanceConstrainedCbfController(LeafSystem):
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
         start = time.perf_counter()
         n, m = self._dimension, self._count
-        stacked = self._state_port.Eval(context)
-        y = stacked[:n]
-        velocity = stacked[n:]
-        belief = GaussianBelief.from_vector(self._belief_port.Eval(context), n)
-        index, mean, rho = _active_obstacles(belief, self._radius, self._kappa)
+        inputs = self._inputs(context)
+        y, velocity, belief = inputs.y, inputs.velocity, inputs.belief
+        index, mean, rho = inputs.index, inputs.mean, inputs.rho
 
         previous = context.get_discrete_state(self._previous).value()
         previous_mean = previous[: m * n].reshape(m, n)[index]
@@ -312,7 +339,7 @@ class ChanceConstrainedCbfController(LeafSystem):
         return np.clip(command, -self._limit, self._limit)
 
 
-class PotentialFieldController(LeafSystem):
+class PotentialFieldController(_BaselineController):
     """Artificial potential field baseline: continuous, no state, direct feedthrough.
 
     F = −∇U(y) of :class:`stt_drake.core.baselines.PotentialField` over the active slots'
@@ -345,30 +372,17 @@ class PotentialFieldController(LeafSystem):
         max_speed: float = 1.0,
         velocity_gain: float = 4.0,
     ) -> None:
-        super().__init__()
-        self._dimension = dimension
-        self._plant = plant
+        super().__init__(task, dimension, plant, input_limit)
         self._field = field
-        self._limit = np.broadcast_to(np.asarray(input_limit, dtype=float), (dimension,)).copy()
         self._max_speed = max_speed
         self._velocity_gain = velocity_gain
-        self._radius = np.asarray(task.radius, dtype=float)
-        self._kappa = _chance_margins(task, dimension)
-        self._state_port = self.DeclareVectorInputPort("plant_state", plant.order * dimension)
-        self._belief_port = self.DeclareVectorInputPort(
-            "obstacle_belief", belief_size(task.count, dimension)
-        )
         self.DeclareVectorOutputPort("control", dimension, self._calc_control)
 
     def _calc_control(self, context: Context, output: BasicVector) -> None:
-        n = self._dimension
-        stacked = self._state_port.Eval(context)
-        y, velocity = stacked[:n], stacked[n:]
-        belief = GaussianBelief.from_vector(self._belief_port.Eval(context), n)
-        _, mean, rho = _active_obstacles(belief, self._radius, self._kappa)
-        command = self._field.field(y, mean, rho)
+        inputs = self._inputs(context)
+        command = self._field.field(inputs.y, inputs.mean, inputs.rho)
         if self._plant.order == 2:
             command = self._plant.command_for_velocity(
-                saturate_norm(command, self._max_speed), velocity, self._velocity_gain
+                saturate_norm(command, self._max_speed), inputs.velocity, self._velocity_gain
             )
         output.SetFromVector(np.clip(command, -self._limit, self._limit))

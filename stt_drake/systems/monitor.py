@@ -204,9 +204,8 @@ class InvariantMonitor(LeafSystem):
         tube = self._tube_port.Eval(context)
         belief = self._belief(context)
         law_belief = ObstacleBelief.of(belief, self._task, self._full_covariance)
-        q = np.ones(belief.count)
-        q[belief.active] = center_avoid_probability(tube[:-1], law_belief, self._r_min)
-        return q - self._task.epsilon
+        q = center_avoid_probability(tube[:-1], law_belief, self._r_min)
+        return belief.per_slot(q, 1.0) - self._task.epsilon
 
     def attach(
         self,
