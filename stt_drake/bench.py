@@ -18,7 +18,8 @@ the numba kernels):
    time (real-time factor), the same per CPU second, and derivative evaluations per second,
    each with the continuous tube and the fixed-rate one (FIXED_RATE_HZ), run in interleaved
    pairs, and the median ratio fixed-rate / continuous over the pairs;
-4. a PNG of tube-step cost against obstacle count.
+4. the guide's replan time and its cost to a closed loop (:mod:`stt_drake.bench_guide`);
+5. a PNG of tube-step cost against obstacle count.
 
 :func:`run_benchmark` returns them as one JSON-ready dict; the command's options, its text
 report and its exit code are in :mod:`stt_drake.cli.bench`. Speed targets are reported,
@@ -40,6 +41,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy.special import ndtri
 
+from stt_drake.bench_guide import bench_guide_plans, bench_guided_loop
 from stt_drake.core import backend
 from stt_drake.core.belief import ObstacleBelief
 from stt_drake.core.probability import avoid_probability
@@ -65,6 +67,9 @@ TARGETS = {
     "speedup_50": 100.0,
     "controller_us": 10.0,
     "omni_cluttered_50_realtime_factor": 20.0,
+    "guide_plan_ms_median": 5.0,
+    "guide_plan_ms_p99": 20.0,
+    "guided_over_unguided": 0.8,
 }
 
 #: Obstacle fields with the density, σ and ε ranges of the shipped cluttered scenarios:
@@ -588,6 +593,7 @@ def run_benchmark(
     anisotropic = bench_anisotropic_tube_steps(repeats)
     tracking = bench_tracker_update(repeats)
     controller = bench_controller(repeats)
+    plans, guided = bench_guide_plans(), bench_guided_loop(loop_repeats, loop_duration)
     loops, ratios = {}, {}
     for name in SCENARIOS:  # the continuous and the fixed-rate loop, in interleaved pairs
         loops[name], loops[fixed_rate_name(name)], ratios[name] = (
@@ -623,6 +629,8 @@ def run_benchmark(
         "tracker_update_us": {
             f"{n}d": {"50": tracking[f"{n}d/50"]["update_us"]["median"]} for n in (2, 3)
         },
+        "guide_plan_ms": {key: {"50": row["median"]} for key, row in plans.items()},
+        "guided_over_unguided": guided["ratio"],
         "baseline_tube_step_us": table("typical", "baseline_us"),
         "speedup_vs_baseline": table("typical", "speedup"),
         "worst_case_tube_step_us": table("worst", "kernel_us"),
@@ -638,6 +646,8 @@ def run_benchmark(
             "tube_step": tube,
             "anisotropic_tube_step": anisotropic,
             "tracker_update": tracking,
+            "guide_plan": plans,
+            "guided_loop": guided,
             "controller": controller,
             "closed_loop": loops,
             "fixed_rate_over_continuous": ratios,
@@ -702,6 +712,19 @@ def _targets(result: dict[str, Any], counts: tuple[int, ...]) -> dict[str, Any]:
             "target": f"<= {TARGETS['tracker_update_us']}",
             "met": row["50"] <= TARGETS["tracker_update_us"],
         }
+    for n, row in result["details"]["guide_plan"].items():
+        for statistic in ("median", "p99"):
+            limit = TARGETS[f"guide_plan_ms_{statistic}"]
+            targets[f"guide_plan_ms_{statistic}_{n}"] = {
+                "value": row[statistic],
+                "target": f"<= {limit}",
+                "met": row[statistic] <= limit,
+            }
+    targets["guided_over_unguided"] = {
+        "value": result["guided_over_unguided"],
+        "target": f">= {TARGETS['guided_over_unguided']} (median of interleaved pairs)",
+        "met": result["guided_over_unguided"] >= TARGETS["guided_over_unguided"],
+    }
     for name, value in result["controller_us"].items():
         targets[f"controller_{name}_us"] = {
             "value": value,

@@ -27,17 +27,20 @@ from stt_drake.core.invariants import (
     evaluate_invariants_packed,
     reach_story,
 )
+from stt_drake.core.progress import find_stalls
 from stt_drake.runlog import RunLog, write_json
 from stt_drake.story import (
     belief_discontinuities,
     separation_after_entry,
+    stall_cause,
+    stall_rule,
     target_separation_violations,
 )
 from stt_drake.systems.monitor import StepRateWatchdog, step_rate_limit
 
 #: Invariants whose margin is a length (the others are probabilities).
 _METRE_MARGINS = ("output_in_tube", "radius_positive")
-#: How many belief discontinuities and recovery episodes the summary lists.
+#: How many belief discontinuities, recovery episodes and stalls the summary lists.
 _SUMMARY_LISTED = 3
 
 
@@ -194,7 +197,9 @@ def simulate(
     logged sample; `strict` (default: the scenario's) stops at the first violation. The
     run always ends with a result: an exception inside the Simulator, a strict stop or
     the step-rate watchdog (:class:`stt_drake.systems.monitor.StepRateWatchdog`) ends it
-    early with everything logged up to then and `stop_reason` saying why.
+    early with everything logged up to then and `stop_reason` saying why. A run that
+    ends normally, not reached, in a stall (:mod:`stt_drake.core.progress`) has a
+    `stop_reason` naming the stall.
     """
     strict = scenario.strict if strict is None else strict
     warnings = scenario_warnings(scenario)
@@ -227,6 +232,9 @@ def simulate(
         built.loggers, context, scenario, built.extra_logs, built.log_constants
     )
     tracker.update_many(log.t, log.margins)
+    stalls = find_stalls(
+        log.t, log.center, log.attraction_point, stall_rule(scenario), scenario.target_set_radius
+    )
     if stopped is not None:
         cause = f"strict mode stopped the run at the first violated guarantee: {stopped}"
     elif failure is not None:
@@ -252,11 +260,17 @@ def simulate(
     if built.plant_report is not None and log.samples > 0:
         plant_metrics = built.plant_report(log)
     segments = plant_metrics.get("segments", [])
+    reached = (
+        t_reach is not None
+        and stop_reason is None
+        and all(segment["completed"] for segment in segments)
+    )
+    if not reached and stop_reason is None and stalls and stalls[-1]["end_s"] is None:
+        worst = worst_margin_so_far(tracker)
+        stop_reason = f"{stall_cause(stalls[-1])}; worst margin so far: {worst}"
     metrics = {
         "scenario": scenario.name,
-        "reached": t_reach is not None
-        and stop_reason is None
-        and all(segment["completed"] for segment in segments),
+        "reached": reached,
         "t_reach": t_reach,
         "holds": tracker.holds,
         "sim_time_s": sim_time,
@@ -274,6 +288,7 @@ def simulate(
         "assumptions": assumptions + separation_after_entry(log, t_reach),
         "belief_discontinuities": belief_discontinuities(log),
         "recovery": recoveries.episodes(),
+        "stalls": stalls,
         "step_rate": {
             "limit_steps_per_s": watchdog.limit,
             "window_steps": watchdog.window_steps,
@@ -359,6 +374,21 @@ def _story_lines(m: dict[str, Any]) -> list[str]:
             )
         if len(episodes) > _SUMMARY_LISTED:
             lines.append(f"    ... and {len(episodes) - _SUMMARY_LISTED} more (metrics.json)")
+    return lines + _stall_lines(m["stalls"])
+
+
+def _stall_lines(stalls: list[dict[str, Any]]) -> list[str]:
+    if not stalls:
+        return []
+    lines = [f"  stalls: {len(stalls)}"]
+    for stall in stalls[:_SUMMARY_LISTED]:
+        end = "the end" if stall["end_s"] is None else f"{stall['end_s']:.2f} s ({stall['ended']})"
+        lines.append(
+            f"    from {stall['start_s']:.2f} s to {end}, detected at {stall['detected_s']:.2f} s "
+            f"{stall['distance_m']:.2f} m from the attraction point"
+        )
+    if len(stalls) > _SUMMARY_LISTED:
+        lines.append(f"    ... and {len(stalls) - _SUMMARY_LISTED} more (metrics.json)")
     return lines
 
 
@@ -367,7 +397,8 @@ def summary(result: RunResult) -> str:
     m = result.metrics
     lines = [f"scenario {m['scenario']}"]
     if m["stop_reason"]:
-        lines.append(f"  STOPPED EARLY: {m['stop_reason']}")
+        label = "STALLED" if m["stop_reason"].startswith("stall:") else "STOPPED EARLY"
+        lines.append(f"  {label}: {m['stop_reason']}")
     lines += _reach_lines(m)
     lines.append(f"  guarantees (worst margin, at time; holds if ≥ −{m['holds_tolerance']:g}):")
     for name, record in m["invariants"].items():

@@ -41,9 +41,9 @@ sigma_rate_bound           (m/s, steps excluded)
 A plant may log more signals, samples first (the UAV's ``wind``; the arm's
 ``joint_state``, ``requested_torque``, ``applied_torque``, ``funnel_errors``,
 ``joint_velocity_reference``, ``external_force``; a task sequence's ``task_target``, the
-target active at each sample) and constants (the arm's ``position_lower``,
-``position_upper``, ``velocity_limit``, ``effort_limit``); they are members like any
-other.
+target active at each sample; a guide's ``guide_target``, its η(t)) and constants (the
+arm's ``position_lower``, ``position_upper``, ``velocity_limit``, ``effort_limit``); they
+are members like any other.
 
 The run's other files are strict JSON (:func:`strict_json`, :func:`write_json`: no
 ``NaN``/``Infinity``; a non-finite value is ``null`` and named in ``"non_finite"``), in a
@@ -257,6 +257,14 @@ class RunLog(Mapping[str, np.ndarray]):
         if "task_target" in self:
             return self.rows("task_target")
         return np.broadcast_to(self.target, (self.samples, self.dimension))
+
+    @cached_property
+    def attraction_point(self) -> np.ndarray:
+        """(T, n) η(t), the point the tube centre is attracted to at each sample: a guide's
+        logged ``guide_target``, else :attr:`active_target`."""
+        if "guide_target" in self:
+            return self.rows("guide_target", self.dimension)
+        return self.active_target
 
     @property
     def r_min(self) -> float:

@@ -1,6 +1,7 @@
 """What happened during a run beyond the guarantees: the assumptions the scenario broke,
-and the belief discontinuities (metrics.json keys `assumptions` and
-`belief_discontinuities`; the reach story is :func:`stt_drake.core.invariants.reach_story`,
+the belief discontinuities and the stalls (metrics.json keys `assumptions`,
+`belief_discontinuities` and `stalls`, the rule of the last in
+:mod:`stt_drake.core.progress`; the reach story is :func:`stt_drake.core.invariants.reach_story`,
 the recovery episodes :class:`stt_drake.core.invariants.RecoveryTracker`, watched at every
 step).
 
@@ -23,6 +24,7 @@ import numpy as np
 
 from stt_drake.config import Scenario
 from stt_drake.config.assumptions import SEPARATION_CHECKPOINTS, target_separation
+from stt_drake.core.progress import DEFAULT_STALL_RULE, StallRule
 from stt_drake.runlog import RunLog
 
 #: Relative slack on the rate bounds when looking for a belief discontinuity (a smooth
@@ -176,3 +178,24 @@ def target_separation_violations(
             }
         )
     return records
+
+
+def stall_rule(scenario: Scenario) -> StallRule:
+    """The stall rule of a run of `scenario`: its guide's (`stall_time`, and
+    `stall_progress` or else the tube's r_min) when it has a guide, else
+    :data:`~stt_drake.core.progress.DEFAULT_STALL_RULE`."""
+    guide = scenario.guide
+    if guide is None:
+        return DEFAULT_STALL_RULE
+    return StallRule(guide.stall_time, guide.stall_progress or scenario.tube.r_min)
+
+
+def stall_cause(stall: Mapping[str, Any]) -> str:
+    """The `stop_reason` cause of a stall episode that lasts to the end (a `stalls` record
+    of :func:`stt_drake.core.progress.find_stalls`)."""
+    position = ", ".join(f"{x:.2f}" for x in stall["position"])
+    return (
+        "stall: the tube centre made no progress toward its attraction point from "
+        f"t = {stall['start_s']:.2f} s to the end (c = [{position}], "
+        f"{stall['distance_m']:.2f} m from it)"
+    )

@@ -15,9 +15,10 @@ with <outcome> one of
 - ``warns <text>``: the run carries a pre-run warning containing <text> (e.g.
   ``Theorem 4.1``) and ends normally with a finite, bounded tube;
 - ``stops <text>``: the run ends early with a ``stop_reason`` containing <text>;
-- ``stalls <text>``: every guarantee holds and the run ends normally, but the tube never
+- ``stalls <text>``: every guarantee holds and the run goes to its end, but the tube never
   settles in the target set (<text> names the cause, e.g. an equilibrium of the law): a
-  known liveness limit, recorded so that a change in it shows.
+  known liveness limit, recorded so that a change in it shows. The run names it: its
+  ``stop_reason`` starts with "stall:" and its last ``stalls`` entry lasts to the end.
 
 Everything here is independent of the code under test: avoidance probabilities come from
 ``scipy.stats.ncx2`` on the raw logged centre, radius, output and belief.
@@ -258,10 +259,15 @@ def check_file(path: Path, run: Callable[[Path], RunResult]) -> None:
         assert reason is not None and expected.detail in reason, f"{path.name}: {reason!r}"
         assert not metrics["reached"], f"{path.name}: a stopped run is never a success"
     elif expected.outcome == "stalls":  # safe but not live
-        check_safe(path, result)
+        check_safe(path, result, stalled=True)
         assert metrics["reach"]["final_entry_s"] is None and not metrics["reached"], (
             f"{path.name}: reached the target after all ({metrics['reach']}): update the file"
         )
+        assert metrics["stalls"] and metrics["stalls"][-1]["end_s"] is None, (
+            f"{path.name}: no stall lasting to the end: {metrics['stalls']}"
+        )
+        duration = scenario_data(path)["duration"]
+        assert metrics["sim_time_s"] == pytest.approx(duration), f"{path.name}: ended early"
     else:  # pragma: no cover (the expectation regex admits nothing else)
         raise AssertionError(f"{path.name}: unknown outcome {expected.outcome}")
 
@@ -277,7 +283,10 @@ def check_every_run(path: Path, result: RunResult) -> None:
     excess = arena_excess(log)
     assert excess <= 1.0, f"{path.name}: the centre left the arena by {excess:.3g} arena sizes"
     assert metrics["sim_time_s"] > 0.0, f"{path.name}: no simulated time"
-    if metrics["stop_reason"] is not None:
+    stopped = metrics["stop_reason"] is not None and not metrics["stop_reason"].startswith(
+        "stall:"  # a stall is named at the end of a run that went to its end
+    )
+    if stopped:
         step_rate = metrics["step_rate"]
         assert step_rate["max_window_steps_per_s"] > 0.0
         bound = step_rate["limit_steps_per_s"] * metrics["sim_time_s"] + step_rate["window_steps"]
@@ -290,11 +299,16 @@ def check_every_run(path: Path, result: RunResult) -> None:
     )
 
 
-def check_safe(path: Path, result: RunResult) -> None:
-    """The run ended normally and every guarantee held, recomputed at every logged sample
-    (≥ −TOLERANCE) and as the library reports it."""
+def check_safe(path: Path, result: RunResult, stalled: bool = False) -> None:
+    """The run ended normally (`stalled`: its only stop reason is a stall to the end) and
+    every guarantee held, recomputed at every logged sample (≥ −TOLERANCE) and as the
+    library reports it."""
     metrics, t = result.metrics, result.log["t"]
-    assert metrics["stop_reason"] is None, f"{path.name}: {metrics['stop_reason']}"
+    reason = metrics["stop_reason"]
+    if stalled:
+        assert reason is not None and reason.startswith("stall:"), f"{path.name}: {reason}"
+    else:
+        assert reason is None, f"{path.name}: {reason}"
     for name, margin in recomputed_margins(result.log).items():
         k = int(np.argmin(margin))
         assert margin[k] >= -TOLERANCE, (

@@ -113,10 +113,12 @@ def test_the_exact_tube_passes_the_gap_the_inflated_one_cannot(run_scenario):
 @pytest.mark.parametrize("name", SCENARIOS)
 def test_the_inflated_belief_does_not_reach_the_target(run_scenario, name):
     """Both scenarios: the exact tube reaches T; inflated to λ_max·I the way is shut and the
-    (still safe) tube stalls in front of the obstacles until the end of the run."""
+    (still safe) tube stalls in front of the obstacles until the end of the run, and the
+    run names the stall."""
     assert run_scenario(name).metrics["reached"]
     inflated = simulate(_inflated(name)).metrics
-    assert not inflated["reached"] and inflated["stop_reason"] is None
+    assert not inflated["reached"] and inflated["stop_reason"].startswith("stall:")
+    assert inflated["stalls"][-1]["end_s"] is None
     assert all(v["holds"] for v in inflated["invariants"].values())
 
 

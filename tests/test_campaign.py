@@ -284,6 +284,21 @@ def test_randomisation_reports_fractions_and_keeps_failing_draws(randomised):
     assert summary["t_reach"]["median"] == pytest.approx(np.median(t_reach))
     assert summary["t_reach"]["max"] == max(t_reach)
     assert (out / "randomisation.png").stat().st_size > 0
+    # Reaching and stalling: every simulated record carries its stop reason and stalls.
+    for record in simulated:
+        assert record["stop_reason"] is None or isinstance(record["stop_reason"], str)
+        assert isinstance(record["stalls"], list)
+        stalled_to_end = bool(record["stalls"]) and record["stalls"][-1]["end_s"] is None
+        named = (record["stop_reason"] or "").startswith("stall:")
+        assert named == (stalled_to_end and not record["reached"])
+    assert summary["reach_rate"] == reached
+    reached_times = [r["t_reach"] for r in simulated if r["reached"]]
+    assert summary["t_reach_percentiles"] == {
+        key: pytest.approx(np.percentile(reached_times, q))
+        for key, q in (("p50", 50), ("p90", 90), ("p99", 99))
+    }
+    stalled = [r for r in simulated if any(s["end_s"] is None for s in r["stalls"])]
+    assert summary["stall_rate"] == len(stalled) / len(simulated)
 
 
 def test_a_failing_draw_replays_from_its_yaml_and_from_its_seed(randomised, tmp_path):
@@ -465,6 +480,29 @@ def test_an_existing_campaign_needs_resume_and_the_same_spec(randomised, tmp_pat
     assert main(other_seed) == 2
     assert "seed" in capsys.readouterr().err
     assert (copy_dir / "runs.jsonl").read_bytes() == (out / "runs.jsonl").read_bytes()
+
+
+def test_records_of_an_older_version_without_stalls_are_kept_on_resume(randomised, tmp_path):
+    """Run records written before `stop_reason` and `stalls` existed are valid: a resume
+    keeps them (no malformed line, no run redone) and reads them as None and []."""
+    _, out = randomised
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "campaign_spec.json").write_bytes((out / "campaign_spec.json").read_bytes())
+    lines = []
+    for record in _records(out):
+        record.pop("stop_reason", None)
+        record.pop("stalls", None)
+        lines.append(json.dumps(record) + "\n")
+    (old / "runs.jsonl").write_text("".join(lines))
+    assert main(_randomisation_args(old, "--resume", "--no-figures")) == 1
+    assert (old / "runs.jsonl").read_text() == "".join(lines)
+    summary, reference = _summary(old), _summary(out)
+    assert summary["malformed_lines"] == 0 and summary["stall_rate"] == 0.0
+    ignored = {"wall_time_s", "stall_rate"}
+    assert {k: v for k, v in summary.items() if k not in ignored} == {
+        k: v for k, v in reference.items() if k not in ignored
+    }
 
 
 def test_a_torn_last_line_is_dropped_on_resume(tmp_path):

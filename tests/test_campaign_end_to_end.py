@@ -105,8 +105,20 @@ def test_an_overconfident_tracker_is_caught(tmp_path):
 
 
 def test_a_resumed_campaign_keeps_its_runs(tmp_path):
+    """... also runs written by an older version, without `stop_reason` and `stalls`."""
     first = campaign(tmp_path, "resumed", "", 6, figures=False)
-    lines = (tmp_path / "resumed" / "runs.jsonl").read_text().splitlines()
+    runs = tmp_path / "resumed" / "runs.jsonl"
+    records = [json.loads(line) for line in runs.read_text().splitlines()]
+    assert any(record["status"] == "simulated" for record in records)
+    older = []
+    for record in records:
+        if record["status"] == "simulated":
+            assert record["stop_reason"] is None or isinstance(record["stop_reason"], str)
+            assert isinstance(record.pop("stalls"), list)
+            record.pop("stop_reason")
+        older.append(json.dumps(record))
+    runs.write_text("".join(line + "\n" for line in older))
+    lines = runs.read_text().splitlines()
     path = tmp_path / "resumed.yaml"
     spec = CampaignSpec(scenario=str(path), kind="end-to-end", runs=10, seed=3)
     outcome = run_campaign(spec, tmp_path / "resumed", workers=2, progress=False, resume=True)

@@ -68,7 +68,7 @@ def test_run_default_scenario_writes_contract_files(tmp_path):
         "exits_s": [],
         "final_entry_s": metrics["t_reach"],
     }
-    for key in ("warnings", "assumptions", "belief_discontinuities", "recovery"):
+    for key in ("warnings", "assumptions", "belief_discontinuities", "recovery", "stalls"):
         assert metrics[key] == [], key
 
     log = np.load(out / "log.npz")

@@ -50,6 +50,7 @@ METRICS_KEYS = {
     "assumptions",
     "belief_discontinuities",
     "recovery",
+    "stalls",
     "step_rate",
 }
 OBSTACLE_KEYS = {

@@ -14,6 +14,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, Outpu
 from pydrake.systems.primitives import LogVectorOutput, MatrixGain, Sine, VectorLogSink
 
 from stt_drake.build.feasibility import rate_bounds
+from stt_drake.build.guide import add_guide
 from stt_drake.build.laws import make_arm_law, make_funnel_controller, make_tube_law
 from stt_drake.build.stt import AddStt
 from stt_drake.config import FrankaArm as FrankaArmConfig
@@ -423,15 +424,16 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> SttDiag
             "task": ObstacleTask.of(scenario.obstacles),
             "full_covariance": scenario.perception.full_covariance,
         }
+    law = make_tube_law(scenario)
     stt = AddStt(
         builder,
-        make_tube_law(scenario),
+        law,
         plant.controller or make_funnel_controller(scenario),
         scenario.start,
         **source,
         update_period=1.0 / rate if rate > 0.0 else None,
         rate_bounds=rate_bounds(scenario),
-        target_input=plant.sequencer is not None,
+        target_input=plant.sequencer is not None or scenario.guide is not None,
     )
     builder.Connect(plant.plant_state, stt.plant_state)
     builder.Connect(stt.control, plant.control_input)
@@ -453,10 +455,25 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> SttDiag
     if perceived is not None:  # the truth the end-to-end check needs, and the corrections
         extra["true_obstacle_position"] = perceived.truth.GetOutputPort("true_obstacle_position")
         extra["belief_updates"] = perceived.tracker.GetOutputPort("belief_updates")
+    task_target = None
     if plant.sequencer is not None:
         builder.Connect(stt.tube, plant.sequencer.GetInputPort("tube"))
-        builder.Connect(plant.sequencer.GetOutputPort("target"), tube.GetInputPort("target"))
-        extra["task_target"] = plant.sequencer.GetOutputPort("target")
+        task_target = plant.sequencer.GetOutputPort("target")
+        extra["task_target"] = task_target
+    if scenario.guide is not None:  # the guide moves η; the task's target stays the goal
+        guide = add_guide(
+            builder,
+            scenario,
+            law,
+            stt,
+            tracks=None if perceived is None else perceived.tracker.GetOutputPort("tracks"),
+            tracker=None if perceived is None else perceived.tracker.model,
+            goal=task_target,
+        )
+        extra["guide_target"] = guide.GetOutputPort("target")
+        extra["guide_status"] = guide.GetOutputPort("guide_status")
+    elif task_target is not None:
+        builder.Connect(task_target, tube.GetInputPort("target"))
     logged.update(extra)
     loggers = add_loggers(builder, logged, scenario.log_period)
     if meshcat is not None:

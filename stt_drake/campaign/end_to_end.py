@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy.stats import chi2
 
+from stt_drake.campaign.randomisation import has_run_story
 from stt_drake.campaign.sampling import CHECKS, hit_intervals
 
 if TYPE_CHECKING:
@@ -87,8 +88,9 @@ def end_to_end_run(schema: Scenario, index: int, seed: int, steps: int) -> dict[
     or simulated; `reason`; every time counts as a collision) or ``simulated``; then
     ``output`` and ``tube`` ([start, stop) ranges of logged-time indices per obstacle, as
     the true-obstacle kind's), ``inside`` and ``tracked`` (calibration counts per
-    obstacle), ``samples`` (logged), ``holds``, ``reached``, ``success`` and
-    ``belief_updates`` (tracker updates that changed a track).
+    obstacle), ``samples`` (logged), ``holds``, ``reached``, ``success``,
+    ``stop_reason`` and ``stalls`` (as in metrics.json) and ``belief_updates`` (tracker
+    updates that changed a track).
     """
     from stt_drake.build import prepare_scenario
     from stt_drake.run import simulate
@@ -120,6 +122,8 @@ def end_to_end_run(schema: Scenario, index: int, seed: int, steps: int) -> dict[
         "holds": bool(result.metrics["holds"]),
         "reached": bool(result.metrics["reached"]),
         "success": bool(result.success),
+        "stop_reason": result.metrics["stop_reason"],
+        "stalls": result.metrics["stalls"],
         "belief_updates": len(result.metrics["belief_discontinuities"]),
     }
 
@@ -137,7 +141,8 @@ def end_to_end_task(
 
 def is_end_to_end_record(record: dict[str, Any], count: int, steps: int) -> bool:
     """Whether a record read back from ``runs.jsonl`` has the shape :func:`end_to_end_run`
-    gives for `count` obstacles and `steps` logged times."""
+    gives for `count` obstacles and `steps` logged times (`stop_reason` and `stalls` may be
+    missing, as in records of older versions)."""
     status = record.get("status")
     for check in CHECKS:
         ranges = record.get(check)
@@ -158,6 +163,7 @@ def is_end_to_end_record(record: dict[str, Any], count: int, steps: int) -> bool
         all(isinstance(c, list) and len(c) == count for c in counts)
         and all(isinstance(record.get(key), bool) for key in ("holds", "reached", "success"))
         and isinstance(record.get("belief_updates"), int)
+        and has_run_story(record)
     )
 
 

@@ -25,8 +25,8 @@ def randomisation_run(schema: Scenario, index: int, seed: int) -> dict[str, Any]
 
     Record: ``{"run", "seed", "status"}`` with status ``rejected`` (the draw breaks the
     paper's assumptions; `reason`), ``error`` (the simulation raised; `reason`) or
-    ``simulated`` (then `obstacles`, `reached`, `t_reach`, `holds`, `success` and
-    `invariants` as in metrics.json).
+    ``simulated`` (then `obstacles`, `reached`, `t_reach`, `holds`, `success`,
+    `stop_reason`, `stalls` and `invariants` as in metrics.json).
     """
     from stt_drake.build import prepare_scenario
     from stt_drake.config import AssumptionError
@@ -50,6 +50,8 @@ def randomisation_run(schema: Scenario, index: int, seed: int) -> dict[str, Any]
         "t_reach": metrics["t_reach"],
         "holds": metrics["holds"],
         "success": result.success,
+        "stop_reason": metrics["stop_reason"],
+        "stalls": metrics["stalls"],
         "invariants": metrics["invariants"],
     }
 
@@ -69,9 +71,46 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
 
 
+def is_stall_record(stall: Any) -> bool:
+    """Whether `stall` has the shape of a metrics.json `stalls` entry
+    (:func:`stt_drake.core.progress.find_stalls`)."""
+    return (
+        isinstance(stall, dict)
+        and all(_is_number(stall.get(key)) for key in ("start_s", "detected_s", "distance_m"))
+        and (stall.get("end_s") is None or _is_number(stall.get("end_s")))
+        and isinstance(stall.get("position"), list)
+        and all(_is_number(x) for x in stall["position"])
+        and isinstance(stall.get("ended"), str)
+    )
+
+
+def has_run_story(record: dict[str, Any]) -> bool:
+    """Whether a simulated run's record has a valid `stop_reason` (str or None) and
+    `stalls` (a list of stall entries); a record written before they existed has neither
+    and passes (read them with :func:`stalls_of` and ``record.get("stop_reason")``)."""
+    reason = record.get("stop_reason")
+    stalls = record.get("stalls", [])
+    return (
+        (reason is None or isinstance(reason, str))
+        and isinstance(stalls, list)
+        and all(is_stall_record(stall) for stall in stalls)
+    )
+
+
+def stalls_of(record: dict[str, Any]) -> list[dict[str, Any]]:
+    """A simulated run's stalls ([] for a record written before they were recorded)."""
+    return record.get("stalls") or []
+
+
+def stalled_to_end(record: dict[str, Any]) -> bool:
+    """Whether a simulated run has a stall that lasts to the end of the run."""
+    return any(stall["end_s"] is None for stall in stalls_of(record))
+
+
 def is_randomisation_record(record: dict[str, Any]) -> bool:
     """Whether a record read back from ``runs.jsonl`` has the shape
-    :func:`randomisation_run` gives (its status and that status's keys and types)."""
+    :func:`randomisation_run` gives (its status and that status's keys and types;
+    `stop_reason` and `stalls` may be missing, as in records of older versions)."""
     status = record.get("status")
     if status in ("rejected", "error"):
         return isinstance(record.get("reason"), str)
@@ -93,6 +132,7 @@ def is_randomisation_record(record: dict[str, Any]) -> bool:
         type(record.get("obstacles")) is int
         and all(isinstance(record.get(key), bool) for key in ("reached", "holds", "success"))
         and (t_reach is None or _is_number(t_reach))
+        and has_run_story(record)
     )
 
 

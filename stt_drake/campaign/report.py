@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from stt_drake.campaign.end_to_end import CALIBRATION_LEVEL, logged_times
-from stt_drake.campaign.randomisation import draw_failed, failure_name
+from stt_drake.campaign.randomisation import draw_failed, failure_name, stalled_to_end
 from stt_drake.campaign.sampling import CHECKS, ClosedLoop, output_collided
 from stt_drake.campaign.spec import CampaignSpec
 from stt_drake.core.statistics import (
@@ -191,8 +191,18 @@ def _distribution(values: Sequence[float]) -> dict[str, float | None]:
     }
 
 
+def _percentiles(values: Sequence[float]) -> dict[str, float] | None:
+    """{"p50", "p90", "p99"} of `values` (None when there are none)."""
+    if not values:
+        return None
+    p50, p90, p99 = np.percentile(np.asarray(values, dtype=float), [50.0, 90.0, 99.0])
+    return {"p50": float(p50), "p90": float(p90), "p99": float(p99)}
+
+
 def summarise_randomisation(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """Fraction of simulated draws where each guarantee held, t_c, worst margins, failures."""
+    """Fraction of simulated draws where each guarantee held, t_c, worst margins, failures;
+    how many draws reached (`reach_rate`, `t_reach_percentiles` over them) and how many
+    ended in a stall (`stall_rate`: a stall lasting to the end)."""
     simulated = [r for r in records if r["status"] == "simulated"]
     failed = sorted((r for r in records if draw_failed(r)), key=lambda r: r["run"])
     guarantees: dict[str, Any] = {}
@@ -224,6 +234,11 @@ def summarise_randomisation(records: Sequence[dict[str, Any]]) -> dict[str, Any]
         "failure_rate_clopper_pearson_upper_99": upper,
         "guarantees": guarantees,
         "t_reach": _distribution([r["t_reach"] for r in simulated if r["t_reach"] is not None]),
+        "reach_rate": _fraction(simulated, "reached"),
+        "t_reach_percentiles": _percentiles([r["t_reach"] for r in simulated if r["reached"]]),
+        "stall_rate": (
+            sum(stalled_to_end(r) for r in simulated) / len(simulated) if simulated else None
+        ),
         "failures": [
             {"run": r["run"], "seed": r["seed"], "yaml": failure_name(r["run"])} for r in failed
         ],
@@ -387,6 +402,22 @@ def plot_randomisation(summary: dict[str, Any], records: Sequence[dict[str, Any]
     return figure
 
 
+def _reach_and_stall_line(summary: dict[str, Any]) -> str:
+    """The randomisation summary's line on reaching and stalling."""
+
+    def rate(value: float | None) -> str:
+        return "n/a" if value is None else f"{value:.3f}"
+
+    line = f"  reached in {rate(summary['reach_rate'])} of simulated draws"
+    percentiles = summary["t_reach_percentiles"]
+    if percentiles is not None:
+        line += (
+            f" (t_c p50 {percentiles['p50']:.2f} s, p90 {percentiles['p90']:.2f} s, "
+            f"p99 {percentiles['p99']:.2f} s)"
+        )
+    return line + f"; stalled to the end in {rate(summary['stall_rate'])}"
+
+
 def report(summary: dict[str, Any]) -> str:
     """The printed campaign summary (per-obstacle table for true-obstacle campaigns)."""
     lines = [
@@ -447,6 +478,7 @@ def report(summary: dict[str, Any]) -> str:
                 else ""
             )
             lines.append(f"    {name:<26} held in {text} of runs{worst}")
+        lines.append(_reach_and_stall_line(summary))
         t_reach = summary["t_reach"]
         if t_reach["median"] is not None:
             lines.append(

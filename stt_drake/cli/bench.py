@@ -91,7 +91,20 @@ def format_table(result: dict[str, Any]) -> str:
             f"factor ratio {ratio:.2f}"
         )
     lines.append("")
-    lines.append(f"4. scaling plot: {result['plot']}")
+    lines.append("4. the guide: one replan (forecast, level sets, space-time A*), ms")
+    for n, row in result["details"]["guide_plan"].items():
+        lines.append(
+            f"  {n}, {row['count']} obstacles: median {row['median']:.2f}, p99 {row['p99']:.2f} "
+            f"over {row['plans']} plans ({row['expansions']:.0f} cells expanded, median)"
+        )
+    guided = result["details"]["guided_loop"]
+    lines.append(
+        f"  liveness_clutter_2d closed loop: guided {guided['guided_realtime_factor']:.1f}×, "
+        f"unguided {guided['unguided_realtime_factor']:.1f}× real time, ratio "
+        f"{guided['ratio']:.2f} (median of interleaved pairs)"
+    )
+    lines.append("")
+    lines.append(f"5. scaling plot: {result['plot']}")
     profile = result.get("profile")
     if profile and profile["available"]:
         lines.append("")

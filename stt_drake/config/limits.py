@@ -11,6 +11,10 @@
   drives the estimate, the estimate and the budget (:func:`check_memory`). The budget is
   :data:`DEFAULT_MEMORY_BUDGET_GB`; the scenario's `max_memory_gb` or the environment
   variable :data:`MEMORY_BUDGET_ENV` (in that order) replace it.
+
+:func:`require` is how every rule of the scenario modules is checked (here so that
+:mod:`stt_drake.config.validate` and the section modules it calls share it without an
+import cycle; it is re-exported there).
 """
 
 from __future__ import annotations
@@ -66,6 +70,13 @@ LOG_COPIES = 3
 OBSTACLE_BYTES = 4096
 
 _GB = 1e9
+
+
+def require(condition: bool, path: str, rule: str, value: Any) -> None:
+    """Raise ScenarioError "<path>: <rule> (got <value>)" unless `condition` (the value
+    echoed as :func:`stt_drake.config.source.short_repr`)."""
+    if not condition:
+        raise ScenarioError(f"{path}: {rule} (got {short_repr(value)})")
 
 
 def check_numbers(value: Any, path: str) -> None:

@@ -298,6 +298,41 @@ class Perception:
         return self.tracker_process_density
 
 
+@dataclass
+class GuideConfig:
+    """The guide above the tube (:class:`stt_drake.systems.guide.TubeGuide`): a route over
+    the obstacles' predicted beliefs whose moving point η(t) the tube is attracted to, while
+    the task's target set stays `target`/`target_set_radius`.
+
+    `planner`: ``grid`` (a compiled space-time A* search on a grid of `resolution` metres;
+    0 derives it from the arena). The plan is redone every `replan_period` seconds, when a
+    track is born or lost and when the tube stalls; η moves every 1/`rate_hz` seconds.
+    Predictions reach `horizon` seconds ahead on knots `time_step` seconds apart (later
+    times use the last knot). A route point is free at the time the tube would be there when
+    every obstacle's avoidance probability P(‖x − O_j‖ ≥ r_o_j + r_min + `clearance`) is at
+    least `avoid_level` (0: each obstacle's own p_d); `clearance` (m) defaults to the tube's
+    r_max − r_min, so the whole tube fits. The tube is assumed to travel at `speed` (m/s; 0
+    derives it from k1 and max_center_speed) and may wait up to `max_wait` seconds at a
+    point; η runs `lookahead` metres ahead of the tube along the route at most (0 derives
+    it). A stall (the centre makes no progress of `stall_progress` metres toward η for
+    `stall_time` seconds; 0 derives the distance: r_min) triggers a replan that avoids the
+    stalled region."""
+
+    planner: str = "grid"
+    rate_hz: float = 10.0
+    replan_period: float = 1.0
+    horizon: float = 20.0
+    time_step: float = 0.2
+    resolution: float = 0.0
+    avoid_level: float = 0.0
+    clearance: float | None = None
+    speed: float = 0.0
+    max_wait: float = 2.0
+    lookahead: float = 0.0
+    stall_time: float = 4.0
+    stall_progress: float = 0.0
+
+
 def _default_simulator_config() -> SimulatorConfig:
     return SimulatorConfig(
         integration_scheme="runge_kutta3",
@@ -332,6 +367,7 @@ class Scenario:
     max_steps_per_second: float = 0.0
     max_memory_gb: float = 0.0
     perception: Perception | None = None
+    guide: GuideConfig | None = None
 
     @property
     def dimension(self) -> int:

@@ -3,19 +3,20 @@ without building anything: the limits of :mod:`stt_drake.config.limits` (finite,
 numbers, seeds, the simulator, memory), the name, shapes, signs, ranges, the obstacles'
 uncertainty (σ, σ schedules, full covariances Σ_j: :func:`require_covariance`), ν, the plant's
 fields, the controller's gains and funnels, the initial avoidance condition q_j(s, 0) > ε_j
-(J(0) > 0 in the proof of Theorem 3.2 (ii)) and Assumption 3 at the target
-(:mod:`stt_drake.config.assumptions`). Every broken rule raises :class:`ScenarioError`
-naming the full field path and the rule.
+(J(0) > 0 in the proof of Theorem 3.2 (ii)), Assumption 3 at the target
+(:mod:`stt_drake.config.assumptions`) and the `guide:` section
+(:mod:`stt_drake.config.validate_guide`). Every broken rule raises :class:`ScenarioError`
+naming the full field path and the rule (:func:`require`, from
+:mod:`stt_drake.config.limits`).
 """
 
 import math
 import re
-from typing import Any
 
 import numpy as np
 
 from stt_drake.config.assumptions import check_target_separation
-from stt_drake.config.limits import check_limits
+from stt_drake.config.limits import check_limits, require
 from stt_drake.config.schema import (
     PLANT_DIMENSION,
     PLANT_FUNNEL_DIMENSION,
@@ -29,7 +30,7 @@ from stt_drake.config.schema import (
     Scenario,
     ScenarioError,
 )
-from stt_drake.config.source import short_repr
+from stt_drake.config.validate_guide import validate_guide
 from stt_drake.core import anisotropic
 from stt_drake.core.belief import axes_covariance, has_full_covariance
 from stt_drake.core.motion import ConstantVelocity, Motion, Oscillation, Waypoints
@@ -58,13 +59,6 @@ UNCERTAINTY_FIELDS = ("sigma", "sigma_schedule", "covariance", "axes_sigma", "co
 
 #: What a scenario name may hold: it names the results folder, results/<name>/.
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_.-]{1,100}")
-
-
-def require(condition: bool, path: str, rule: str, value: Any) -> None:
-    """Raise ScenarioError "<path>: <rule> (got <value>)" unless `condition` (the value
-    echoed as :func:`stt_drake.config.source.short_repr`)."""
-    if not condition:
-        raise ScenarioError(f"{path}: {rule} (got {short_repr(value)})")
 
 
 def name_from_stem(stem: str) -> str:
@@ -514,6 +508,8 @@ def validate(scenario: Scenario) -> None:
     )
     if scenario.perception is not None:
         _validate_perception(scenario.perception, scenario)
+    if scenario.guide is not None:
+        validate_guide(scenario.guide, scenario)
     _validate_plant(scenario)
     stages = PLANT_STAGES[type(scenario.plant)]
     funnel_dimension = PLANT_FUNNEL_DIMENSION.get(type(scenario.plant), n)

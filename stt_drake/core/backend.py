@@ -54,6 +54,7 @@ KERNELS: dict[str, tuple[int, ...] | None] = {
     "quantile_radius_array": (2, 3),  # anisotropic.quantile_radius
     "anisotropic_tube_step": (2, 3),  # tube.TubeLaw.evaluate with covariances
     "track_update": COMPILED_DIMENSIONS,  # tracking.update
+    "route_search": None,  # route_search.search_route (the guide's A*)
 }
 
 #: Kernels that live in another compiled module than :mod:`stt_drake.core._kernels`.
@@ -63,6 +64,7 @@ KERNEL_MODULES: dict[str, str] = {
     "quantile_radius_array": "_anisotropic",
     "anisotropic_tube_step": "_anisotropic_tube",
     "track_update": "_tracking",
+    "route_search": "_guide",
 }
 
 _state: dict[str, object] = {

@@ -253,6 +253,24 @@ class TubeLaw:
             },
         )
 
+    def with_target(self, target: np.ndarray) -> TubeLaw:
+        """This law attracted to `target` (n,), its kernel constants reused with only η
+        replaced: a guide or a task sequencer moves η as often as every step."""
+        target = np.array(target, dtype=float).ravel()
+        k2, k3, constants = self._kernel_constants
+        n = target.size
+        moved = {}
+        for mode, values in constants.items():
+            moved[mode] = values.copy()
+            moved[mode][-n:] = target
+        # A field-for-field copy (dataclasses.replace re-runs __init__: 5× slower); the
+        # constants go where cached_property keeps them.
+        law = object.__new__(TubeLaw)
+        law.__dict__.update(self.__dict__)
+        law.__dict__["target"] = target
+        law.__dict__["_kernel_constants"] = (k2, k3, moved)
+        return law
+
     def _gains_for(self, count: int) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         constants = self._kernel_constants
         if constants[0].size not in (1, count) or constants[1].size not in (1, count):

@@ -137,8 +137,10 @@ class ObstacleTracker(LeafSystem):
     than the tracks'); τ = 0 publishes the jump, which the tube meets with its recovery
     behaviour (:mod:`stt_drake.core.tube`). Births and losses are never blended.
 
-    Output `belief_updates` (m): per slot, how many updates so far changed its track (a
-    correction, a birth or a loss), which a run's metrics list as belief discontinuities.
+    Output `tracks`: the track table itself (:meth:`TrackTable.to_vector`), for a system
+    that predicts further ahead (a guide). Output `belief_updates` (m): per slot, how many
+    updates so far changed its track (a correction, a birth or a loss), which a run's
+    metrics list as belief discontinuities.
     """
 
     def __init__(
@@ -161,12 +163,18 @@ class ObstacleTracker(LeafSystem):
         self._update_time = self.DeclareDiscreteState([-np.inf])
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
         self.DeclareStateOutputPort("belief_updates", self._updates)
+        self.DeclareStateOutputPort("tracks", self._tracks)
         self.DeclareVectorOutputPort(
             "obstacle_belief",
             belief_size(count, n),
             self._calc_belief,
             prerequisites_of_calc={self.time_ticket(), self.xd_ticket()},
         )
+
+    @property
+    def model(self) -> KalmanTracker:
+        """The tracking rules (what a guide predicts the tracks with)."""
+        return self._tracker
 
     def tracks(self, context: Context) -> TrackTable:
         """The track table held in `context` (this system's context)."""

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -208,7 +207,7 @@ class SpatiotemporalTube(LeafSystem):
         return self._target_law.Eval(context)
 
     def _calc_target_law(self, context: Context, value: AbstractValue) -> None:
-        value.set_value(replace(self._law, target=np.array(self._target_port.Eval(context))))
+        value.set_value(self._law.with_target(self._target_port.Eval(context)))
 
     def _calc_evaluation(self, context: Context, value: AbstractValue) -> None:
         law = self._law_in(context)

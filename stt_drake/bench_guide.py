@@ -1,0 +1,94 @@
+"""`stt-drake bench`, the guide's rows: how long one replan takes and what a guide costs a
+closed loop.
+
+1. ``guide_plan_ms``: one whole replan — the scripted forecast over the horizon, the
+   level-set radii and the space-time A* (:meth:`stt_drake.core.guide.RoutePlanner.plan`)
+   — on the 50-obstacle fields of ``omni_cluttered_50`` (2D) and ``uav_cluttered`` (3D,
+   40 obstacles: the packaged field), from points along the straight line at times
+   0 … 40 s; median and 99th percentile (ms) over those plans;
+2. ``guided_over_unguided``: the real-time factor of ``liveness_clutter_2d`` with its guide
+   over the same draw without it, in interleaved pairs (median ratio).
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from importlib.resources import files
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: The fields the replan is timed on (packaged scenario names) by dimension.
+PLAN_FIELDS = {"2d": "omni_cluttered_50", "3d": "uav_cluttered"}
+#: The guided closed loop (packaged scenario) and the draw it is timed on.
+GUIDED_LOOP, GUIDED_SEED = "liveness_clutter_2d", 2
+
+
+def bench_guide_plans(plans: int = 60) -> dict[str, Any]:
+    """Per dimension: ``median`` and ``p99`` of one replan (ms, wall clock, after a warm-up
+    plan that loads the compiled search), its ``expansions`` median and the field's
+    obstacle ``count``."""
+    from stt_drake.build import load_scenario
+    from stt_drake.build.guide import guide_settings
+    from stt_drake.build.laws import make_tube_law
+    from stt_drake.config import GuideConfig
+    from stt_drake.core.belief import ObstacleTask
+    from stt_drake.core.guide import RoutePlanner, ScriptedForecast
+
+    results: dict[str, Any] = {}
+    for key, name in PLAN_FIELDS.items():
+        scenario = load_scenario(Path(str(files("stt_drake.diagrams") / f"{name}.yaml")))
+        scenario.guide = GuideConfig()
+        law = make_tube_law(scenario)
+        settings = guide_settings(scenario, law)
+        task = ObstacleTask.of(scenario.obstacles)
+        planner = RoutePlanner(settings, task.radius, task.epsilon, law.r_min, scenario.dimension)
+        forecast = ScriptedForecast(scenario.obstacles, scenario.dimension)
+        start, goal = np.asarray(scenario.start), np.asarray(scenario.target)
+        planner.plan(start, goal, 0.0, forecast(settings.knots))  # warm-up
+        times, expansions = [], []
+        for k in range(plans):
+            t0 = 40.0 * k / plans
+            origin = start + (goal - start) * (0.6 * k / plans)
+            begin = time.perf_counter()
+            route = planner.plan(origin, goal, t0, forecast(t0 + settings.knots))
+            times.append(1e3 * (time.perf_counter() - begin))
+            expansions.append(route.expansions)
+        results[key] = {
+            "median": statistics.median(times),
+            "p99": float(np.percentile(times, 99)),
+            "expansions": statistics.median(expansions),
+            "count": len(scenario.obstacles),
+            "plans": plans,
+        }
+    return results
+
+
+def bench_guided_loop(pairs: int = 3, duration: float | None = None) -> dict[str, Any]:
+    """Real-time factors of :data:`GUIDED_LOOP` (draw :data:`GUIDED_SEED`; simulated for at
+    most `duration` seconds) with and without its guide, in interleaved pairs, and the
+    median ratio guided / unguided."""
+    from stt_drake.build import prepare_scenario
+    from stt_drake.config import parse_schema
+    from stt_drake.run import simulate
+
+    text = (files("stt_drake.diagrams") / f"{GUIDED_LOOP}.yaml").read_text()
+    factors: dict[str, list[float]] = {"guided": [], "unguided": []}
+    for _ in range(pairs):
+        for mode in ("guided", "unguided"):
+            schema = parse_schema(text, GUIDED_LOOP)
+            if mode == "unguided":
+                schema.guide = None
+            if duration is not None:
+                schema.duration = min(schema.duration, duration)
+            metrics = simulate(prepare_scenario(schema, GUIDED_SEED)).metrics
+            factors[mode].append(metrics["realtime_factor"])
+    ratios = [g / u for g, u in zip(factors["guided"], factors["unguided"], strict=True)]
+    return {
+        "guided_realtime_factor": statistics.median(factors["guided"]),
+        "unguided_realtime_factor": statistics.median(factors["unguided"]),
+        "ratio": statistics.median(ratios),
+        "ratios": ratios,
+    }
