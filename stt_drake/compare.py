@@ -2,10 +2,12 @@
 (:mod:`stt_drake.build.baselines`) on one scenario.
 
 Per controller: one closed-loop simulation of the scenario (same plant, disturbance and
-obstacles; STT through :func:`stt_drake.run.simulate`), then a true-obstacle Monte Carlo
-campaign (:func:`stt_drake.campaign.run_campaign`) of `runs` draws against that closed loop
-in ``out_dir/<controller>/``. A baseline has no tube: its closed loop has c = y and r = 0,
-and only the campaign's output check is reported.
+obstacles; STT through :func:`stt_drake.run.simulate`: ``stt`` is the paper's reactive tube
+(a guide section of the file is dropped), ``stt-guided`` the tube under the guide (the
+file's section, or :class:`~stt_drake.config.GuideConfig`'s defaults)), then a
+true-obstacle Monte Carlo campaign (:func:`stt_drake.campaign.run_campaign`) of `runs`
+draws against that closed loop in ``out_dir/<controller>/``. A baseline has no tube: its
+closed loop has c = y and r = 0, and only the campaign's output check is reported.
 
 ``comparison.json`` has one row per controller (:data:`ROW_KEYS`):
 
@@ -50,14 +52,15 @@ from stt_drake.build.baselines import (
 )
 from stt_drake.build.laws import make_funnel_controller, make_tube_law
 from stt_drake.campaign import CampaignError, CampaignSpec, ClosedLoop, run_campaign
-from stt_drake.config import OmniRobot, Quadrotor, Scenario
+from stt_drake.config import GuideConfig, OmniRobot, Quadrotor, Scenario
 from stt_drake.core.statistics import CERTIFIED
 from stt_drake.run import scenario_simulator, simulate
 from stt_drake.runlog import RunLog, unwritable_reason, write_json
 from stt_drake.systems.baselines import PotentialFieldController
 
-#: Every controller `compare` knows, in table order.
-CONTROLLERS = ("stt", *BASELINES)
+#: Every controller `compare` knows, in table order: the paper's reactive tube, the tube
+#: under the guide (:mod:`stt_drake.core.guide`), the baselines.
+CONTROLLERS = ("stt", "stt-guided", *BASELINES)
 #: The keys of every row of comparison.json.
 ROW_KEYS = (
     "controller",
@@ -340,7 +343,9 @@ def compare(
         folder = out_dir if name is None else out_dir / "model_error" / _folder_name(name)
         for controller in ordered:
             if controller == "stt":
-                run = simulate_stt(variant)
+                run = simulate_stt(replace(variant, guide=None))
+            elif controller == "stt-guided":
+                run = simulate_stt(replace(variant, guide=variant.guide or GuideConfig()))
             else:
                 run = simulate_baseline(variant, controller, solver)
             try:
@@ -373,7 +378,8 @@ def compare(
     return document
 
 
-def _cell(value: Any, digits: int = 3) -> str:
+def cell(value: Any, digits: int = 3) -> str:
+    """A table cell: — for None, yes/no, floats to `digits` significant digits."""
     if value is None:
         return "—"
     if isinstance(value, bool):
@@ -407,7 +413,7 @@ def comparison_table(rows: Sequence[dict[str, Any]]) -> str:
         "|" + "|".join("---" for _ in _COLUMNS) + "|",
     ]
     for row in rows:
-        lines.append("| " + " | ".join(_cell(row[key]) for _, key in _COLUMNS) + " |")
+        lines.append("| " + " | ".join(cell(row[key]) for _, key in _COLUMNS) + " |")
     return "\n".join(lines)
 
 

@@ -15,6 +15,7 @@ from pydrake.systems.framework import Diagram
 
 from stt_drake.build.diagram import SttDiagram, build_diagram
 from stt_drake.build.feasibility import scenario_warnings
+from stt_drake.build.guide import stall_rule
 from stt_drake.config import Scenario
 from stt_drake.core import backend
 from stt_drake.core.belief import GaussianBelief, ObstacleBelief, ObstacleTask
@@ -33,7 +34,6 @@ from stt_drake.story import (
     belief_discontinuities,
     separation_after_entry,
     stall_cause,
-    stall_rule,
     target_separation_violations,
 )
 from stt_drake.systems.monitor import StepRateWatchdog, step_rate_limit

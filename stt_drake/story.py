@@ -24,7 +24,6 @@ import numpy as np
 
 from stt_drake.config import Scenario
 from stt_drake.config.assumptions import SEPARATION_CHECKPOINTS, target_separation
-from stt_drake.core.progress import DEFAULT_STALL_RULE, StallRule
 from stt_drake.runlog import RunLog
 
 #: Relative slack on the rate bounds when looking for a belief discontinuity (a smooth
@@ -178,16 +177,6 @@ def target_separation_violations(
             }
         )
     return records
-
-
-def stall_rule(scenario: Scenario) -> StallRule:
-    """The stall rule of a run of `scenario`: its guide's (`stall_time`, and
-    `stall_progress` or else the tube's r_min) when it has a guide, else
-    :data:`~stt_drake.core.progress.DEFAULT_STALL_RULE`."""
-    guide = scenario.guide
-    if guide is None:
-        return DEFAULT_STALL_RULE
-    return StallRule(guide.stall_time, guide.stall_progress or scenario.tube.r_min)
 
 
 def stall_cause(stall: Mapping[str, Any]) -> str:

@@ -190,19 +190,33 @@ def test_tracked_forecast_is_the_trackers_own_prediction():
 
 
 def test_attraction_point_leads_waits_and_ends_at_the_goal():
-    points = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.0]])
-    times = np.array([0.0, 2.0, 6.0, 8.0])  # 2 → 6 s: 1 m in 4 s (a wait in between)
+    points = np.array([[0.0, 0.0], [3.0, 0.0]])
+    times = np.array([0.0, 6.0])  # 0.5 m/s
     route = Route(points, times, True, 0)
     guide = settings(1, lookahead=1.0, speed=0.5)  # η leads by (1/2)/0.5 = 1 s of route
     eta, nearest = attraction_point(route, np.zeros(2), 0.0, guide, 0.0)
     assert np.allclose(eta, [0.5, 0.0]) and nearest == 0.0
     # far behind the route's clock: no more than one look-ahead ahead of the tube
-    eta, _ = attraction_point(route, np.array([0.2, 0.0]), 7.0, guide, 0.0)
+    eta, _ = attraction_point(route, np.array([0.2, 0.0]), 5.0, guide, 0.0)
     assert np.allclose(eta, [1.2, 0.0])
+    # ahead of the route's clock: η waits where the route is (the nearest point)
+    eta, _ = attraction_point(route, np.array([2.0, 0.0]), 0.0, guide, 0.0)
+    assert np.allclose(eta, [2.0, 0.0])
     # never back along the route, even if the centre is pushed back
-    eta, nearest = attraction_point(route, np.array([2.5, 0.3]), 7.5, guide, 0.0)
-    eta_back, _ = attraction_point(route, np.array([1.0, 0.5]), 7.5, guide, nearest)
+    eta, nearest = attraction_point(route, np.array([2.5, 0.3]), 5.5, guide, 0.0)
+    eta_back, _ = attraction_point(route, np.array([1.0, 0.5]), 5.5, guide, nearest)
     assert eta_back[0] >= 1.0
     # at the end: the goal itself
     eta, _ = attraction_point(route, np.array([2.9, 0.0]), 20.0, guide, 2.9)
     assert np.array_equal(eta, [3.0, 0.0])
+
+
+def test_attraction_point_turns_at_corners_only_near_them():
+    """η stops at the route's next corner until the centre is within the corner radius:
+    a point beyond it would pull the centre across what the route went around."""
+    route = Route(np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0]]), np.array([0.0, 4, 8]), True, 0)
+    guide = settings(1, lookahead=1.5, speed=0.5, resolution=0.1)
+    eta, _ = attraction_point(route, np.array([1.5, 0.0]), 3.0, guide, 1.5)
+    assert np.allclose(eta, [2.0, 0.0])
+    eta, _ = attraction_point(route, np.array([1.95, 0.0]), 3.9, guide, 1.9)
+    assert eta[1] > 0.5 and eta[0] == pytest.approx(2.0)

@@ -31,7 +31,7 @@ def guided(scenario, **fields):
 
 
 @pytest.mark.parametrize(
-    "name", ["omni_pocket_u", "omni_wall_gap_off_line", "uav_target_behind_moving"]
+    "name", ["omni_pocket_u", "omni_wall_gap_off_line", "uav_behind_oscillating_sphere"]
 )
 def test_reactive_tube_stalls_and_the_guide_gets_there(name):
     """Unguided: every guarantee holds, the target is not reached and the run names the

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from stt_drake.build import load_scenario
+from stt_drake.build.guide import stall_rule
 from stt_drake.cli.main import main
 from stt_drake.config import GuideConfig
 from stt_drake.core.progress import (
@@ -20,7 +21,6 @@ from stt_drake.core.progress import (
     find_stalls,
 )
 from stt_drake.runlog import RunLog
-from stt_drake.story import stall_rule
 
 ROOT = Path(__file__).resolve().parent.parent
 CASE1 = ROOT / "diagrams" / "omni_hardware_case1.yaml"

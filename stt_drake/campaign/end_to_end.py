@@ -129,13 +129,14 @@ def end_to_end_run(schema: Scenario, index: int, seed: int, steps: int) -> dict[
 
 
 def end_to_end_task(
-    text: str, name: str, steps: int, runs: Sequence[tuple[int, int]]
+    text: str, name: str, steps: int, guide: bool, runs: Sequence[tuple[int, int]]
 ) -> list[dict[str, Any]]:
     """One executor task: the records of a batch of (run index, seed), the YAML parsed once
-    for the batch (the schema holds Drake objects that do not pickle, so the text travels)."""
+    for the batch (the schema holds Drake objects that do not pickle, so the text travels);
+    `guide` False drops the scenario's guide section."""
     from stt_drake.config import parse_schema
 
-    schema = parse_schema(text, name)
+    schema = parse_schema(text, name, guide)
     return [end_to_end_run(schema, index, seed, steps) for index, seed in runs]
 
 

@@ -99,7 +99,7 @@ def _load_checked_scenario(spec: CampaignSpec, text: str, name: str) -> Any:
 
     randomising = spec.kind == "randomisation"
     try:
-        schema = parse_schema(text, name)
+        schema = parse_schema(text, name, spec.guide)
         if randomising and not has_random_field(schema.random_obstacles):
             raise CampaignError(
                 "scenario.random_obstacles: a randomisation campaign needs a random_obstacles "
@@ -200,7 +200,7 @@ def _run_locked(
     randomising = spec.kind == "randomisation"
     if spec.kind == "end-to-end":
         steps, count = logged_times(scenario), len(scenario.obstacles)
-        task, task_args = end_to_end_task, (text, name, steps)
+        task, task_args = end_to_end_task, (text, name, steps, spec.guide)
         size, failed, label = chunk_size or 1, end_to_end_failed, "collided"
 
         def shaped(record: Record) -> bool:
@@ -215,7 +215,7 @@ def _run_locked(
         def shaped(record: Record) -> bool:
             return is_true_obstacle_record(record, count, steps)
     else:
-        task, task_args = randomisation_task, (text, name)
+        task, task_args = randomisation_task, (text, name, spec.guide)
         size, failed, label = chunk_size or 1, draw_failed, "failures"
         shaped = is_randomisation_record
         (out_dir / FAILURES_DIR).mkdir(exist_ok=True)
@@ -259,7 +259,9 @@ def _run_locked(
                     if randomising:  # written before its record: a record
                         # in runs.jsonl always has its YAML, even after a kill
                         (out_dir / failure_name(record["run"])).write_text(
-                            failing_draw_yaml(text, name, record["seed"], spec.seed, record["run"])
+                            failing_draw_yaml(
+                                text, name, record["seed"], spec.seed, record["run"], spec.guide
+                            )
                         )
                 stream.write(strict_json(record) + "\n")
                 records[record["run"]] = record

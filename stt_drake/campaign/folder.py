@@ -31,6 +31,8 @@ from stt_drake.campaign.spec import CampaignError, CampaignSpec
 from stt_drake.runlog import restore_non_finite, write_json
 
 RUNS_FILE, SPEC_FILE, LOCK_FILE = "runs.jsonl", "campaign_spec.json", ".lock"
+#: Spec fields added after the first campaigns, with the value older specs meant.
+SPEC_DEFAULTS = {"guide": True}
 
 Record = dict[str, Any]
 
@@ -84,7 +86,8 @@ def check_resumable(out_dir: Path, spec: CampaignSpec, text_hash: str, resume: b
         if not isinstance(stored, dict):
             stored = {}
         for key, value in wanted.items():
-            if key not in ("runs", "scenario") and stored.get(key) != value:
+            # a spec written before a field existed holds that field's default
+            if key not in ("runs", "scenario") and stored.get(key, SPEC_DEFAULTS.get(key)) != value:
                 raise CampaignError(
                     f"--resume: {key} differs from the campaign in {out_dir} "
                     f"({stored.get(key)!r} there, {value!r} now)"

@@ -57,13 +57,14 @@ def randomisation_run(schema: Scenario, index: int, seed: int) -> dict[str, Any]
 
 
 def randomisation_task(
-    text: str, name: str, runs: Sequence[tuple[int, int]]
+    text: str, name: str, guide: bool, runs: Sequence[tuple[int, int]]
 ) -> list[dict[str, Any]]:
     """One executor task: the records of a batch of (run index, seed), the YAML parsed once
-    for the batch (the schema holds Drake objects that do not pickle, so the text travels)."""
+    for the batch (the schema holds Drake objects that do not pickle, so the text travels);
+    `guide` False drops the scenario's guide section."""
     from stt_drake.config import parse_schema
 
-    schema = parse_schema(text, name)
+    schema = parse_schema(text, name, guide)
     return [randomisation_run(schema, index, seed) for index, seed in runs]
 
 
@@ -144,11 +145,15 @@ def draw_failed(record: dict[str, Any]) -> bool:
     )
 
 
-def failing_draw_yaml(text: str, name: str, seed: int, campaign_seed: int, index: int) -> str:
-    """The scenario text that reproduces one draw: its own `seed` (and `name`) set."""
+def failing_draw_yaml(
+    text: str, name: str, seed: int, campaign_seed: int, index: int, guide: bool = True
+) -> str:
+    """The scenario text that reproduces one draw: its own `seed` (and `name`) set; the
+    replay command says ``--no-guide`` when the campaign dropped the guide."""
+    replay = "stt-drake run <this file>" + ("" if guide else " --no-guide")
     header = (
         f"# Failing draw: run {index} of a randomisation campaign (campaign seed "
-        f"{campaign_seed}). Replay: stt-drake run <this file>\n"
+        f"{campaign_seed}). Replay: {replay}\n"
     )
     body = text if text.endswith("\n") else text + "\n"
     seed_line = re.compile(r"^seed:[^\n]*$", re.MULTILINE)

@@ -284,6 +284,7 @@ def write_summary(
         "kind": spec.kind,
         "runs": spec.runs,
         "seed": spec.seed,
+        "guide": spec.guide,
         "run_seed": "SeedSequence(seed, spawn_key=(i,)).generate_state(1)[0]",
         "wall_time_s": time.perf_counter() - started,
         "malformed_lines": malformed_lines,

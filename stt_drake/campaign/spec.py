@@ -36,6 +36,8 @@ class CampaignSpec:
     seed: int = 0
     motion: str = "static"
     tau: float = 2.0
+    #: False: the scenario's guide section is dropped (the reactive tube, same draws).
+    guide: bool = True
 
     def validate(self) -> None:
         """Raise CampaignError naming the option of the first bad value."""

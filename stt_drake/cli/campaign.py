@@ -32,6 +32,8 @@ def resume_command(
         words += ["--true-obstacle-motion", spec.motion]
     if spec.tau != _DEFAULT_TAU:
         words += ["--ou-tau", repr(spec.tau)]
+    if not spec.guide:
+        words += ["--no-guide"]
     if workers is not None:
         words += ["--workers", str(workers)]
     if scheduler is not None:
@@ -48,6 +50,7 @@ def _campaign(args: argparse.Namespace) -> bool:
         seed=args.seed,
         motion=args.true_obstacle_motion,
         tau=args.ou_tau,
+        guide=not args.no_guide,
     )
     out_dir = args.out
     if out_dir is None:
@@ -125,4 +128,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--chunk-size", type=int, default=None, help="runs per task")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figure")
+    parser.add_argument(
+        "--no-guide",
+        action="store_true",
+        help="drop the scenario's guide section: the reactive tube on the same runs",
+    )
     parser.set_defaults(handler=_campaign)

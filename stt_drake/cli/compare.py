@@ -19,6 +19,10 @@ def _compare(args: argparse.Namespace) -> bool:
     from stt_drake.compare import TABLE_FILE, CompareError, compare, comparison_table
 
     scenario = resolve_scenario(args.scenario)  # a path, or a packaged scenario's name
+    if args.draws is not None:
+        return _compare_draws(args, scenario)
+    if args.runs is None:
+        raise BadInputError("stt-drake compare: --runs: required (or --draws K)")
     try:
         document = compare(
             scenario,
@@ -40,6 +44,34 @@ def _compare(args: argparse.Namespace) -> bool:
     return True
 
 
+def _compare_draws(args: argparse.Namespace, scenario: Path) -> bool:
+    from stt_drake.compare import CompareError
+    from stt_drake.compare_draws import compare_draws, draws_table
+
+    if args.scheduler is not None or args.model_error:
+        raise BadInputError(
+            "stt-drake compare: --draws runs on local processes without model error "
+            "(drop --scheduler and --model-error)"
+        )
+    try:
+        document = compare_draws(
+            scenario,
+            args.controllers,
+            args.draws,
+            args.out,
+            seed=args.seed,
+            workers=args.workers,
+            solver=args.solver,
+        )
+    except CompareError as error:
+        raise BadInputError(f"stt-drake compare: {error}") from None
+    except KeyboardInterrupt:
+        raise CommandError("stt-drake compare: stopped: interrupted") from None
+    print(draws_table(document["rows"]))
+    print(f"  wrote {args.out / 'comparison.md'} and comparison.json, draws.jsonl there")
+    return True
+
+
 def add_parser(commands: argparse._SubParsersAction) -> None:
     """Declare `stt-drake compare`."""
     parser = commands.add_parser(
@@ -54,9 +86,20 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "--controllers",
         nargs="+",
         required=True,
-        help="controllers to compare: stt, cbf (chance-constrained CBF-QP), apf (potential field)",
+        help="controllers to compare: stt (the reactive tube), stt-guided (the tube under the "
+        "guide), cbf (chance-constrained CBF-QP), apf (potential field)",
     )
-    parser.add_argument("--runs", type=int, required=True, help="campaign runs per controller")
+    parser.add_argument(
+        "--runs", type=int, default=None, help="campaign runs per controller (one scenario)"
+    )
+    parser.add_argument(
+        "--draws",
+        type=int,
+        default=None,
+        help="instead: every controller on K randomised draws of the scenario's random_obstacles "
+        "(success, stall, timeout and unsafe rates)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the draws (default 0)")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=None, help="local processes (default: cores)")
     where.add_argument("--scheduler", default=None, help="Dask scheduler, e.g. tcp://host:8786")

@@ -33,6 +33,8 @@ def _run(args: argparse.Namespace) -> bool:
 
     check_seed_argument(args.seed)
     scenario, out_dir = load_scenario_arguments(args, seed=args.seed)
+    if args.no_guide:
+        scenario.guide = None
     strict = True if args.strict else None
     if args.meshcat:  # drawn live in Meshcat while it runs; the recording is replay.html
         from stt_drake.replay import simulate_live
@@ -70,6 +72,11 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "--strict", action="store_true", help="stop at the first violated guarantee"
     )
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    parser.add_argument(
+        "--no-guide",
+        action="store_true",
+        help="drop the scenario's guide section: the paper's reactive tube",
+    )
     parser.add_argument(
         "--meshcat",
         action="store_true",

@@ -207,12 +207,14 @@ def _check_required(raw: dict) -> None:
         _require_fields(spec, RANDOM_REQUIRED, "scenario.random_obstacles")
 
 
-def parse_schema(text: str, default_name: str = "scenario") -> Scenario:
+def parse_schema(text: str, default_name: str = "scenario", guide: bool = True) -> Scenario:
     """YAML text → the schema dataclasses, with duplicate keys, unknown keys, missing
     required fields and type errors reported by their field path; nothing drawn, nothing
     else checked (:func:`complete_scenario` does that, once per seed: a campaign parses its
     file once and completes a copy per run). A scenario without a `name` is named
-    `default_name`, made a valid name (:func:`stt_drake.config.validate.name_from_stem`)."""
+    `default_name`, made a valid name (:func:`stt_drake.config.validate.name_from_stem`).
+    ``guide=False`` drops the file's `guide:` section: the paper's reactive tube on the
+    same scenario (``--no-guide``)."""
     raw = compose_checked(text, _TaggedLoader)
     if not isinstance(raw, dict):
         raise ScenarioError("scenario: the file must be a mapping of fields")
@@ -225,6 +227,8 @@ def parse_schema(text: str, default_name: str = "scenario") -> Scenario:
         raise ScenarioError(located or f"scenario: {error}") from None
     if not scenario.name:
         scenario.name = name_from_stem(default_name)
+    if not guide:
+        scenario.guide = None
     return scenario
 
 

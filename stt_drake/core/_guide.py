@@ -1,11 +1,22 @@
 """Compiled (numba) kernel of the guide's route search: :func:`stt_drake.core.route_search.
 search_route` under ``numba.njit`` (the one source of the search; the numpy path runs it as
-plain Python). A test compares the two."""
+plain Python). A test compares the two.
+
+The kernel is compiled from a copy of the function object that names this module as its
+own (as every kernel of :mod:`stt_drake.core.backend` does); its code and globals stay
+those of :mod:`stt_drake.core.route_search`, so numba's on-disk cache is keyed on that
+file's source."""
 
 from __future__ import annotations
+
+import types
 
 from numba import njit
 
 from stt_drake.core.route_search import search_route
 
-route_search = njit(cache=True, error_model="numpy", nogil=True)(search_route)
+_source = types.FunctionType(
+    search_route.__code__, search_route.__globals__, "route_search", search_route.__defaults__
+)
+_source.__module__ = __name__
+route_search = njit(cache=True, error_model="numpy", nogil=True)(_source)
