@@ -85,6 +85,15 @@ def test_bench_json_report(tmp_path, capsys):
     assert set(tracker) == {"2d", "3d"}
     assert all(set(row) == {"50"} and row["50"] > 0 for row in tracker.values())
     assert {"tracker_update_50_2d_us", "tracker_update_50_3d_us"} <= set(result["targets"])
+    # the guide (issue 24): one replan at 50 obstacles per dimension, and its closed loop
+    plans = result["details"]["guide_plan"]
+    for n in ("2d", "3d"):
+        assert plans[n]["count"] == 50
+        assert result["guide_plan_ms"][n] == {"50": plans[n]["median"]}
+        assert 0.0 < plans[n]["median"] <= plans[n]["p99"]
+        assert {f"guide_plan_ms_median_{n}", f"guide_plan_ms_p99_{n}"} <= set(result["targets"])
+    guided = result["details"]["guided_loop"]
+    assert result["guided_over_unguided"] == guided["ratio"] > 0.0
     for table in ("tube_step_us", "baseline_tube_step_us", "speedup_vs_baseline"):
         assert set(result[table]) == {"2d", "3d"}
         for dimension in ("2d", "3d"):

@@ -124,3 +124,66 @@ def test_guide_replans_when_tracks_are_born_and_lost():
     replans, stalls = log["guide_status"][-1, 0], log["guide_status"][-1, 1]
     assert changes.sum() >= 2  # born and lost at least once each
     assert replans - 1 - stalls in (changes.sum(), changes[:-1].sum())
+
+
+def test_guide_with_the_fixed_rate_tube_and_on_the_arm():
+    """The guide drives the fixed-rate (20 Hz) tube out of the pocket, and the arm's
+    pick-and-place through its task sequencer (the sequencer's target is the guide's goal):
+    every task completed, every guarantee and joint limit held."""
+    pocket = load_scenario(SCENARIOS / "omni_pocket_u.yaml")
+    pocket.tube.update_rate_hz = 20.0
+    metrics = simulate(guided(pocket, rate_hz=10.0)).metrics
+    assert metrics["holds"] and metrics["reached"]
+
+    arm = load_scenario(SCENARIOS.parent.parent / "diagrams" / "franka_pick_place_case1.yaml")
+    result = simulate(guided(arm, rate_hz=10.0))
+    assert result.success, result.metrics["stop_reason"]
+    assert all(segment["completed"] for segment in result.metrics["segments"])
+    goals = {tuple(np.round(g, 6)) for g in result.log["task_target"]}
+    assert len(goals) == 4  # the guide followed the sequencer through all four tasks
+
+
+def test_a_stalled_tube_makes_the_guide_replan_around_the_stall():
+    """The guide alone, its tube input held still: after `stall_time` it counts a stall,
+    replans, and the new route leaves the region around the stalled centre at once (every
+    corner after its start outside it; the planner's own avoidance is tested in
+    tests/test_guide.py)."""
+    from pydrake.systems.analysis import Simulator
+
+    from stt_drake.build.guide import guide_settings
+    from stt_drake.core.belief import ObstacleTask, obstacle_belief
+    from stt_drake.core.guide import RoutePlanner, ScriptedForecast
+    from stt_drake.core.progress import StallRule
+    from stt_drake.systems.guide import TubeGuide
+
+    scenario = guided(load_scenario(SCENARIOS / "omni_pocket_u.yaml"), stall_time=1.0)
+    law = make_tube_law(scenario)
+    settings = guide_settings(scenario, law)
+    task = ObstacleTask.of(scenario.obstacles)
+    guide = TubeGuide(
+        RoutePlanner(settings, task.radius, task.epsilon, law.r_min, 2),
+        settings,
+        task.count,
+        2,
+        period=0.1,
+        replan_period=1000.0,
+        stall_rule=StallRule(1.0, 0.1),
+        arrived=scenario.target_set_radius,
+        goal=np.asarray(scenario.target),
+        forecast=ScriptedForecast(scenario.obstacles, 2),
+    )
+    context = guide.CreateDefaultContext()
+    stuck = np.array([2.0, 0.0])
+    guide.GetInputPort("tube").FixValue(context, [*stuck, 0.3])
+    belief = obstacle_belief(scenario.obstacles, 2, 0.0).gaussian().to_vector()
+    guide.GetInputPort("obstacle_belief").FixValue(context, belief)
+    simulator = Simulator(guide, context)
+    simulator.Initialize()
+    simulator.AdvanceTo(0.95)
+    assert guide.GetOutputPort("guide_status").Eval(context)[1] == 0  # not yet
+    simulator.AdvanceTo(1.55)
+    status = guide.GetOutputPort("guide_status").Eval(context)
+    assert status[1] == 1 and status[0] == 2  # one stall, answered by one replan
+    after = guide.route(context)
+    away = np.linalg.norm(after.points[2:] - stuck, axis=1)
+    assert away.min() >= settings.stall_radius - settings.resolution

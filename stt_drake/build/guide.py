@@ -10,6 +10,7 @@ from pydrake.systems.framework import DiagramBuilder, OutputPort
 
 from stt_drake.build.stt import SttHandles
 from stt_drake.config import Scenario
+from stt_drake.config.validate_guide import MAX_GRID_CELLS
 from stt_drake.core.guide import GuideSettings, RoutePlanner, ScriptedForecast
 from stt_drake.core.progress import DEFAULT_STALL_RULE, StallRule
 from stt_drake.core.tracking import KalmanTracker
@@ -57,7 +58,8 @@ def guide_settings(scenario: Scenario, law: TubeLaw) -> GuideSettings:
         avoid_level=np.array(levels, dtype=float),
         stall_radius=2.0 * (law.r_max + resolution),
         margin=margin,
-        max_cells=int(math.prod([DERIVED_CELLS.get(n, 40)] * n)) * 3,
+        # a derived grid stays small; a given resolution is the user's (validated ≤ 4e6 cells)
+        max_cells=MAX_GRID_CELLS if config.resolution else 3 * DERIVED_CELLS.get(n, 40) ** n,
     )
 
 
