@@ -406,15 +406,20 @@ _COLUMNS = (
 )
 
 
-def comparison_table(rows: Sequence[dict[str, Any]]) -> str:
-    """The rows as a markdown table (comparison.md, and what the command prints)."""
+def markdown_table(rows: Sequence[dict[str, Any]], columns: Sequence[tuple[str, str]]) -> str:
+    """`rows` as a markdown table of `columns` ((header, row key) pairs)."""
     lines = [
-        "| " + " | ".join(header for header, _ in _COLUMNS) + " |",
-        "|" + "|".join("---" for _ in _COLUMNS) + "|",
+        "| " + " | ".join(header for header, _ in columns) + " |",
+        "|" + "|".join("---" for _ in columns) + "|",
     ]
     for row in rows:
-        lines.append("| " + " | ".join(cell(row[key]) for _, key in _COLUMNS) + " |")
+        lines.append("| " + " | ".join(cell(row[key]) for _, key in columns) + " |")
     return "\n".join(lines)
+
+
+def comparison_table(rows: Sequence[dict[str, Any]]) -> str:
+    """The rows as a markdown table (comparison.md, and what the command prints)."""
+    return markdown_table(rows, _COLUMNS)
 
 
 #: The metrics the figure's bar charts show: (row key, title).

@@ -38,6 +38,7 @@ import numpy as np
 
 from stt_drake.compare import (
     CompareError,
+    markdown_table,
     min_clearance,
     output_reach_time,
     simulate_baseline,
@@ -231,13 +232,5 @@ _COLUMNS = (
 
 
 def draws_table(rows: Sequence[dict[str, Any]]) -> str:
-    """The rows as a markdown table."""
-    from stt_drake.compare import cell
-
-    lines = [
-        "| " + " | ".join(header for header, _ in _COLUMNS) + " |",
-        "|" + "|".join("---" for _ in _COLUMNS) + "|",
-    ]
-    for row in rows:
-        lines.append("| " + " | ".join(cell(row[key]) for _, key in _COLUMNS) + " |")
-    return "\n".join(lines)
+    """The rows as a markdown table (comparison.md, and what the command prints)."""
+    return markdown_table(rows, _COLUMNS)
