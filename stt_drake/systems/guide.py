@@ -101,9 +101,9 @@ class TubeGuide(LeafSystem):
         avoid = np.zeros((MAX_AVOIDED, n + 2))
         avoid[:, -1] = -np.inf
         self._avoid = self.DeclareDiscreteState(avoid.ravel())
-        # Discrete (not unrestricted) updates: an unrestricted update may change the
-        # continuous state, so the integrator restarts its step size after each one (it cost
-        # the liveness loop 90 % more steps).
+        # All of the guide's state is numeric and fixed-size, so a discrete update (which
+        # declares that only discrete state changes) carries it; the route is a padded
+        # vector (route_to_vector) rather than abstract state.
         self.DeclareInitializationDiscreteUpdateEvent(self._update)
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
         self.DeclareStateOutputPort("target", self._eta)
