@@ -29,12 +29,15 @@ closed loop has c = y and r = 0, and only the campaign's output check is reporte
 * `model_error`: null, or the name of the perturbation of the plant's true parameters
   (:data:`MODEL_ERRORS`) the row's simulations ran with (``--model-error``).
 
-Plus ``comparison.md`` (the table) and ``comparison.png`` (paths and metrics).
+Plus ``comparison.md`` (the table) and ``comparison.png`` (paths and metrics). The out
+folder is locked for the whole comparison and refused when it already holds one, unless
+resumed (:mod:`stt_drake.compare_checks`).
 """
 
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -51,11 +54,27 @@ from stt_drake.build.baselines import (
     nominal_plant,
 )
 from stt_drake.build.laws import make_funnel_controller, make_tube_law
-from stt_drake.campaign import CampaignError, CampaignSpec, ClosedLoop, run_campaign
+from stt_drake.campaign import (
+    CLOSED_LOOP_FILE,
+    CampaignError,
+    CampaignSpec,
+    ClosedLoop,
+    run_campaign,
+)
+from stt_drake.campaign.backends import check_scheduler_address
+from stt_drake.campaign.spec import check_runs
+from stt_drake.compare_checks import (
+    COMPARISON_FILE,
+    DRAWS_FILE,
+    CompareError,
+    check_common,
+    check_out,
+    comparison_folder,
+)
 from stt_drake.config import GuideConfig, OmniRobot, Quadrotor, Scenario
 from stt_drake.core.statistics import CERTIFIED
 from stt_drake.run import scenario_simulator, simulate
-from stt_drake.runlog import RunLog, unwritable_reason, write_json
+from stt_drake.runlog import RunLog, write_json
 from stt_drake.systems.baselines import PotentialFieldController
 
 #: Every controller `compare` knows, in table order: the paper's reactive tube, the tube
@@ -86,13 +105,9 @@ MODEL_ERRORS: dict[type, tuple[tuple[str, dict[str, float]], ...]] = {
         ("drag x2", {"drag": 2.0}),
     ),
 }
-COMPARISON_FILE, TABLE_FILE, FIGURE_FILE = "comparison.json", "comparison.md", "comparison.png"
+TABLE_FILE, FIGURE_FILE = "comparison.md", "comparison.png"
 #: How many times the figure draws the obstacles' means at.
 _FIGURE_TIMES = 4
-
-
-class CompareError(ValueError):
-    """Bad input to `compare`; the message names the option."""
 
 
 @dataclass
@@ -262,10 +277,10 @@ def _check_input(
     controllers: Sequence[str],
     runs: int,
     out_dir: Path,
-    workers: int | None,
-    solver: str,
+    options: dict[str, Any],
 ) -> None:
-    """Refuse bad input before any work (:class:`CompareError`, naming the option)."""
+    """Refuse bad input before any work (:class:`CompareError`, naming the option);
+    `options`: ``workers``, ``scheduler``, ``model_error``, ``solver``."""
     unknown = [c for c in controllers if c not in CONTROLLERS]
     if not controllers or unknown:
         raise CompareError(
@@ -279,15 +294,55 @@ def _check_input(
             nominal_plant(scenario)
         except BaselineError as error:
             raise CompareError(str(error)) from None
-    if runs < 1:
-        raise CompareError(f"--runs: must be ≥ 1 (got {runs})")
-    if workers is not None and workers < 1:
-        raise CompareError(f"--workers: must be ≥ 1 (got {workers})")
-    if solver not in SOLVERS:
-        raise CompareError(f"--solver: must be one of {', '.join(SOLVERS)} (got {solver!r})")
-    reason = unwritable_reason(out_dir)
-    if reason is not None:
-        raise CompareError(f"--out: {out_dir} {reason}")
+    check_common(scenario, controllers, options["workers"])
+    if options["model_error"] and type(scenario.plant) not in MODEL_ERRORS:
+        raise CompareError(
+            f"--model-error: no model-error variants for the {type(scenario.plant).__name__} "
+            f"plant of scenario {scenario.name!r} (only for "
+            f"{', '.join(plant.__name__ for plant in MODEL_ERRORS)}); drop --model-error"
+        )
+    try:
+        check_runs(runs)
+        if options["scheduler"] is not None:
+            check_scheduler_address(options["scheduler"])
+    except CampaignError as error:
+        raise CompareError(str(error)) from None
+    if options["solver"] not in SOLVERS:
+        raise CompareError(
+            f"--solver: must be one of {', '.join(SOLVERS)} (got {options['solver']!r})"
+        )
+    check_out(out_dir)
+
+
+def same_closed_loop(first: ClosedLoop, second: ClosedLoop) -> bool:
+    """Whether two closed loops hold the same arrays (a resumed campaign must sample
+    against the trajectory it started with)."""
+    arrays = [(getattr(first, k), getattr(second, k)) for k in first.__dataclass_fields__]
+    return all(
+        (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
+        for a, b in arrays
+    )
+
+
+def _check_resumed_loop(folder: Path, loop: ClosedLoop, controller: str) -> None:
+    """Refuse to resume `controller`'s campaign in `folder` against a closed loop other
+    than the one it sampled against (:class:`CompareError`, ``--resume``)."""
+    path = folder / CLOSED_LOOP_FILE
+    if not path.exists():
+        return
+    try:
+        same = same_closed_loop(ClosedLoop.load(path), loop)
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        raise CompareError(
+            f"--resume: {path} is unreadable ({error}), so {controller}'s campaign cannot be "
+            "checked to sample the same closed loop; choose another --out"
+        ) from None
+    if not same:
+        raise CompareError(
+            f"--resume: {controller}'s closed loop, simulated again, differs from the one its "
+            f"campaign in {folder} sampled against (another scenario or code version); "
+            "choose another --out"
+        )
 
 
 def _variants(scenario: Scenario, model_error: bool) -> list[tuple[str | None, Scenario]]:
@@ -317,13 +372,20 @@ def compare(
     model_error: bool = False,
     solver: str = "osqp",
     progress: bool = False,
+    resume: bool = False,
 ) -> dict[str, Any]:
     """Compare `controllers` on the scenario file `scenario_path` (module docstring) and
     write comparison.json, comparison.md and comparison.png into `out_dir`; return the
     comparison.json document.
 
+    `out_dir` is locked for the whole comparison. With `resume`, every closed loop is
+    simulated again (one simulation per controller and variant; it must equal the one its
+    campaign sampled against) and each campaign continues from its ``runs.jsonl``;
+    without, a folder that already holds a comparison is refused.
+
     Raises:
-        CompareError: bad input (an option, the scenario, the folder), before any work.
+        CompareError: bad input (an option, the scenario, the folder: locked, or holding a
+            comparison without `resume`), before any simulation.
         CampaignStoppedError: a campaign could not finish.
     """
     from stt_drake.build import load_scenario
@@ -334,48 +396,70 @@ def compare(
         scenario = load_scenario(path)
     except ScenarioError as error:
         raise CompareError(f"SCENARIO: bad scenario {path}: {error}") from None
-    _check_input(scenario, controllers, runs, out_dir, workers, solver)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    options = {"workers": workers, "scheduler": scheduler, "model_error": model_error}
+    _check_input(scenario, controllers, runs, out_dir, {**options, "solver": solver})
     ordered = [c for c in CONTROLLERS if c in controllers]
-    rows, figure_runs = [], {}
-    variants = _variants(scenario, model_error)
-    for name, variant in variants:
-        folder = out_dir if name is None else out_dir / "model_error" / _folder_name(name)
-        for controller in ordered:
-            if controller == "stt":
-                run = simulate_stt(replace(variant, guide=None))
-            elif controller == "stt-guided":
-                run = simulate_stt(replace(variant, guide=variant.guide or GuideConfig()))
-            else:
-                run = simulate_baseline(variant, controller, solver)
-            try:
+    variants = [
+        (name, variant, out_dir if name is None else out_dir / "model_error" / _folder_name(name))
+        for name, variant in _variants(scenario, model_error)
+    ]
+    folders = [folder / c for _, _, folder in variants for c in ordered]
+    with comparison_folder(out_dir, resume, folders):
+        if resume and (out_dir / DRAWS_FILE).exists():
+            raise CompareError(
+                f"--resume: {out_dir} holds a comparison over draws ({DRAWS_FILE}); resume "
+                "it with --draws, or choose another --out"
+            )
+        if resume:
+            print(
+                "stt-drake compare: --resume: each controller's closed loop is simulated again "
+                "(one simulation per controller and variant); its campaign continues from its "
+                "runs.jsonl",
+                file=sys.stderr,
+            )
+        rows, figure_runs = [], {}
+        for name, variant, folder in variants:
+            for controller in ordered:
+                run = _simulate(variant, controller, solver)
+                loop = ClosedLoop.from_log(run.log)
+                if resume:
+                    _check_resumed_loop(folder / controller, loop, controller)
                 outcome = run_campaign(
                     CampaignSpec(scenario=str(path), runs=runs),
                     folder / controller,
                     workers=workers,
                     scheduler=scheduler,
+                    resume=resume,
                     progress=progress,
-                    closed_loop=ClosedLoop.from_log(run.log),
+                    closed_loop=loop,
                 )
-            except CampaignError as error:
-                raise CompareError(str(error)) from None
-            rows.append(comparison_row(controller, run, outcome.summary, name))
-            if name is None:
-                figure_runs[controller] = run.log
-    document = {
-        "scenario": scenario.name,
-        "scenario_path": str(path),
-        "runs": runs,
-        "solver": solver,
-        "controllers": ordered,
-        "model_errors": [name for name, _ in variants[1:]],
-        "rows": rows,
-    }
-    write_json(out_dir / COMPARISON_FILE, document)
-    (out_dir / TABLE_FILE).write_text(comparison_table(rows) + "\n")
-    figure = plot_comparison(figure_runs, rows)
-    figure.savefig(out_dir / FIGURE_FILE, dpi=120)
+                rows.append(comparison_row(controller, run, outcome.summary, name))
+                if name is None:
+                    figure_runs[controller] = run.log
+        document = {
+            "scenario": scenario.name,
+            "scenario_path": str(path),
+            "runs": runs,
+            "solver": solver,
+            "controllers": ordered,
+            "model_errors": [name for name, _, _ in variants[1:]],
+            "rows": rows,
+        }
+        write_json(out_dir / COMPARISON_FILE, document)
+        (out_dir / TABLE_FILE).write_text(comparison_table(rows) + "\n")
+        figure = plot_comparison(figure_runs, rows)
+        figure.savefig(out_dir / FIGURE_FILE, dpi=120)
     return document
+
+
+def _simulate(scenario: Scenario, controller: str, solver: str) -> ControllerRun:
+    """`controller`'s closed loop on `scenario` (``stt``: the guide section dropped;
+    ``stt-guided``: the file's guide, or the defaults)."""
+    if controller == "stt":
+        return simulate_stt(replace(scenario, guide=None))
+    if controller == "stt-guided":
+        return simulate_stt(replace(scenario, guide=scenario.guide or GuideConfig()))
+    return simulate_baseline(scenario, controller, solver)
 
 
 def cell(value: Any, digits: int = 3) -> str:

@@ -18,6 +18,12 @@ attraction point), `unsafe` (at some logged time the belief's exact probability 
 output collides with obstacle j exceeds 1 − ε_j: the PrT-RAS task broken, Definition 2.3),
 `t_reach_s`, `path_length_m`, `min_clearance_m` (min of ‖y − μ_j‖ − r_o_j), `step_us`.
 
+Each line also holds its ``sha256`` checksum (:func:`stt_drake.campaign.folder.record_line`)
+and is appended as its draw finishes; ``--resume`` keeps the lines whose checksum, seed and
+shape are right (a line that fails is named on stderr and its draw redone), the spec of
+the draws (``draws_spec.json``: scenario file hash, seed, solver) must match, and `draws`
+may grow.
+
 A row of ``comparison.json`` (:data:`DRAW_ROW_KEYS`) per controller, over its simulated
 draws: `success_rate` (reached), `stall_rate`, `timeout_rate` (neither reached nor
 stalled: still moving at the end, or stopped), `unsafe_rate`, `t_reach_p50_s` /
@@ -27,15 +33,19 @@ smallest over draws) and `step_us_median`.
 
 from __future__ import annotations
 
-import multiprocessing
+import hashlib
+import json
 import statistics
-from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
+import sys
+from collections.abc import Iterator, Sequence
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from stt_drake.campaign.folder import CHECKSUM_KEY, record_checksum, record_line
+from stt_drake.campaign.spec import CampaignStoppedError
 from stt_drake.compare import (
     CompareError,
     markdown_table,
@@ -44,6 +54,8 @@ from stt_drake.compare import (
     simulate_baseline,
     simulate_stt,
 )
+from stt_drake.compare_checks import DRAWS_FILE, check_common, check_out, comparison_folder
+from stt_drake.runlog import restore_non_finite, write_json
 
 #: The controllers a draws comparison knows, in table order.
 DRAW_CONTROLLERS = ("stt", "stt-guided", "cbf", "apf")
@@ -61,7 +73,9 @@ DRAW_ROW_KEYS = (
     "min_clearance_m",
     "step_us_median",
 )
-DRAWS_FILE = "draws.jsonl"
+DRAWS_SPEC_FILE = "draws_spec.json"
+#: The most draws a comparison may ask for (every record is kept in memory).
+MAX_DRAWS = 1_000_000
 
 
 def draw_record(
@@ -109,8 +123,71 @@ def draw_record(
     }
 
 
-def _task(arguments: tuple[str, str, str, int, int, str]) -> dict[str, Any]:
-    return draw_record(*arguments)
+def draws_task(
+    text: str, name: str, solver: str, batch: Sequence[tuple[str, int, int]]
+) -> list[dict[str, Any]]:
+    """One executor task: the records of a batch of (controller, draw, seed)."""
+    return [draw_record(text, name, c, draw, seed, solver) for c, draw, seed in batch]
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _is_draw_record(record: Any, seed: int) -> bool:
+    """Whether a record read back from draws.jsonl has :func:`draw_record`'s shape and
+    the seed of its draw."""
+    from stt_drake.campaign import run_seed
+
+    if not isinstance(record, dict) or record.get("controller") not in DRAW_CONTROLLERS:
+        return False
+    draw = record.get("draw")
+    if type(draw) is not int or draw < 0 or record.get("seed") != run_seed(seed, draw):
+        return False
+    if record.get("status") == "rejected":
+        return isinstance(record.get("reason"), str)
+    t_reach = record.get("t_reach_s")
+    return (
+        record.get("status") == "simulated"
+        and all(isinstance(record.get(k), bool) for k in ("reached", "stalled", "unsafe"))
+        and (t_reach is None or _is_number(t_reach))
+        and all(_is_number(record.get(k)) for k in ("path_length_m", "min_clearance_m", "step_us"))
+    )
+
+
+def read_draws(path: Path, seed: int) -> tuple[dict[tuple[str, int], dict[str, Any]], list[str]]:
+    """(the valid records of draws.jsonl by (controller, draw), what was skipped: one line
+    per skipped line). A line is skipped when it is not JSON, its checksum is missing or
+    wrong, or it is not a draw record of `seed`; the first valid line of a draw wins; a torn
+    last line (no newline) is cut off."""
+    records: dict[tuple[str, int], dict[str, Any]] = {}
+    skipped: list[str] = []
+    if not path.exists():
+        return records, skipped
+    data = path.read_bytes()
+    keep = data.rfind(b"\n") + 1
+    if keep < len(data):
+        with path.open("r+b") as stream:
+            stream.truncate(keep)
+    for number, line in enumerate(data[:keep].split(b"\n")[:-1], start=1):
+        try:
+            record = json.loads(line)
+            checksum = record.pop(CHECKSUM_KEY, None) if isinstance(record, dict) else None
+            good = checksum is not None and checksum == record_checksum(record)
+            record = restore_non_finite(record) if good else record
+        except (ValueError, RecursionError, LookupError, TypeError, AttributeError):
+            skipped.append(f"line {number}: not a draw record")
+            continue
+        where = f"line {number}"
+        if isinstance(record, dict) and "controller" in record and "draw" in record:
+            where += f" ({record['controller']}, draw {record['draw']})"
+        if not good:
+            skipped.append(f"{where}: {'no checksum' if checksum is None else 'checksum mismatch'}")
+        elif not _is_draw_record(record, seed):
+            skipped.append(f"{where}: not a draw record of this comparison")
+        else:
+            records.setdefault((record["controller"], record["draw"]), record)
+    return records, skipped
 
 
 def draw_row(controller: str, records: Sequence[dict[str, Any]]) -> dict[str, Any]:
@@ -140,6 +217,28 @@ def draw_row(controller: str, records: Sequence[dict[str, Any]]) -> dict[str, An
     }
 
 
+def _check_spec(out_dir: Path, spec: dict[str, Any], resume: bool) -> None:
+    """On resume, refuse a draws spec that differs from the one in `out_dir` (the number
+    of draws may grow); then write it."""
+    path = out_dir / DRAWS_SPEC_FILE
+    if resume and path.exists():
+        try:
+            stored = json.loads(path.read_text())
+        except (OSError, ValueError) as error:
+            raise CompareError(
+                f"--resume: {path} is unreadable ({error}), so this cannot be checked to be "
+                "the same comparison; choose another --out"
+            ) from None
+        for key, value in spec.items():
+            if not isinstance(stored, dict) or stored.get(key) != value:
+                there = stored.get(key) if isinstance(stored, dict) else None
+                raise CompareError(
+                    f"--resume: {key} differs from the comparison in {out_dir} ({there!r} "
+                    f"there, {value!r} now)"
+                )
+    write_json(path, spec)
+
+
 def compare_draws(
     scenario_path: str | Path,
     controllers: Sequence[str],
@@ -148,19 +247,22 @@ def compare_draws(
     seed: int = 0,
     workers: int | None = None,
     solver: str = "osqp",
+    resume: bool = False,
 ) -> dict[str, Any]:
     """Run every controller on `draws` draws (module docstring) on `workers` local
     processes; write ``draws.jsonl``, ``comparison.json`` and ``comparison.md`` into
-    `out_dir`; return the comparison.json document.
+    `out_dir` (locked meanwhile); return the comparison.json document. With `resume`, the
+    draws already in ``draws.jsonl`` are kept.
 
     Raises:
-        CompareError: bad input (an option, the scenario without a random field), before
+        CompareError: bad input (an option, the scenario without a random field, the
+            folder: locked, holding a comparison without `resume`, another spec), before
             any simulation.
+        CampaignStoppedError: a worker process died (the finished draws are kept).
     """
     from stt_drake.campaign import run_seed
-    from stt_drake.campaign.backends import default_workers
+    from stt_drake.campaign.backends import LocalPool, execute
     from stt_drake.config import ScenarioError, has_random_field, parse_schema, read_scenario_file
-    from stt_drake.runlog import strict_json, unwritable_reason, write_json
 
     path = Path(scenario_path)
     unknown = [c for c in controllers if c not in DRAW_CONTROLLERS]
@@ -169,10 +271,10 @@ def compare_draws(
             f"--controllers: each once, and each one of {', '.join(DRAW_CONTROLLERS)} (got "
             f"{', '.join(controllers) or 'none'})"
         )
-    if draws < 1:
-        raise CompareError(f"--draws: must be ≥ 1 (got {draws})")
-    if workers is not None and workers < 1:
-        raise CompareError(f"--workers: must be ≥ 1 (got {workers})")
+    if not 1 <= draws <= MAX_DRAWS:
+        raise CompareError(f"--draws: must be ≥ 1 and ≤ {MAX_DRAWS:,} (got {draws})")
+    if seed < 0:
+        raise CompareError(f"--seed: must be ≥ 0 (got {seed})")
     try:
         text = read_scenario_file(path)
         schema = parse_schema(text, path.stem)
@@ -183,35 +285,50 @@ def compare_draws(
             "--draws: the scenario needs a random_obstacles section (count > 0 or a "
             "count_range) to draw from"
         )
-    reason = unwritable_reason(out_dir)
-    if reason is not None:
-        raise CompareError(f"--out: {out_dir} {reason}")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    check_common(schema, controllers, workers)
+    check_out(out_dir)
     ordered = [c for c in DRAW_CONTROLLERS if c in controllers]
-    tasks = [
-        (text, schema.name, controller, i, run_seed(seed, i), solver)
-        for i in range(draws)
-        for controller in ordered
-    ]
-    context = multiprocessing.get_context("forkserver")
-    with ProcessPoolExecutor(workers or default_workers(), mp_context=context) as pool:
-        records = list(pool.map(_task, tasks))
-    with (out_dir / DRAWS_FILE).open("w") as stream:
-        for record in records:
-            stream.write(strict_json(record) + "\n")
-    rows = [draw_row(c, [r for r in records if r["controller"] == c]) for c in ordered]
-    document = {
-        "scenario": schema.name,
-        "scenario_path": str(path),
-        "mode": "draws",
-        "draws": draws,
-        "seed": seed,
-        "rejected_draws": sum(r["status"] == "rejected" for r in records) // len(ordered),
-        "controllers": ordered,
-        "rows": rows,
-    }
-    write_json(out_dir / "comparison.json", document)
-    (out_dir / "comparison.md").write_text(draws_table(rows) + "\n")
+    spec = {"scenario_sha256": hashlib.sha256(text.encode()).hexdigest(), "seed": seed}
+    with comparison_folder(out_dir, resume):
+        _check_spec(out_dir, {**spec, "solver": solver}, resume)
+        done, skipped = read_draws(out_dir / DRAWS_FILE, seed) if resume else ({}, [])
+        for line in skipped:
+            print(f"stt-drake compare: {out_dir / DRAWS_FILE}: {line}; redone", file=sys.stderr)
+        pending: Iterator[list[tuple[str, int, int]]] = (
+            [(c, i, run_seed(seed, i))] for i in range(draws) for c in ordered if (c, i) not in done
+        )
+        backend = LocalPool(workers, ["stt_drake.compare_draws"])
+        try:
+            with (out_dir / DRAWS_FILE).open("a" if resume else "w") as stream:
+
+                def on_records(batch: list[dict[str, Any]]) -> None:
+                    for record in batch:
+                        stream.write(record_line(record) + "\n")
+                        done[(record["controller"], record["draw"])] = record
+                    stream.flush()
+
+                execute(backend, draws_task, (text, schema.name, solver), pending, on_records)
+        except BrokenProcessPool:
+            raise CampaignStoppedError(
+                "a worker process died (killed, out of memory or a crash in native code); "
+                f"the finished draws are kept in {out_dir / DRAWS_FILE}: resume with --resume"
+            ) from None
+        finally:
+            backend.close()
+        records = [done[(c, i)] for i in range(draws) for c in ordered]
+        rows = [draw_row(c, [r for r in records if r["controller"] == c]) for c in ordered]
+        document = {
+            "scenario": schema.name,
+            "scenario_path": str(path),
+            "mode": "draws",
+            "draws": draws,
+            "seed": seed,
+            "rejected_draws": sum(r["status"] == "rejected" for r in records) // len(ordered),
+            "controllers": ordered,
+            "rows": rows,
+        }
+        write_json(out_dir / "comparison.json", document)
+        (out_dir / "comparison.md").write_text(draws_table(rows) + "\n")
     return document
 
 

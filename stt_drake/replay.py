@@ -25,11 +25,27 @@ from stt_drake.systems.visualizer import PUBLISH_PERIOD
 LOCALHOST = "127.0.0.1"
 
 
+class MeshcatHostError(ValueError):
+    """No Meshcat server can listen on the host asked for (not an address of this
+    machine, not a host name that resolves to one)."""
+
+
 def start_meshcat(host: str = LOCALHOST) -> Meshcat:
     """A Meshcat server on `host` (default the loopback interface, never the network unless
     asked: pydrake's own default is every interface) at an ephemeral port, so parallel
-    runs never collide."""
-    return Meshcat(MeshcatParams(host=host, port=0))
+    runs never collide.
+
+    Raises:
+        MeshcatHostError: the server cannot listen there (binding fails locally: nothing
+            is sent anywhere).
+    """
+    try:
+        return Meshcat(MeshcatParams(host=host, port=0))
+    except RuntimeError as error:  # Drake: "Meshcat failed to open a websocket port."
+        raise MeshcatHostError(
+            f"cannot open a Meshcat server on {host!r} ({str(error).strip()}): give an address "
+            f"of this machine ({LOCALHOST}, the default, or '*' for every interface)"
+        ) from None
 
 
 def simulate_live(

@@ -16,7 +16,8 @@ from pydrake.systems.framework import Diagram
 from stt_drake.build.diagram import SttDiagram, build_diagram
 from stt_drake.build.feasibility import scenario_warnings
 from stt_drake.build.guide import stall_rule
-from stt_drake.config import Scenario
+from stt_drake.config import AssumptionError, Scenario
+from stt_drake.config.assumptions import check_target_separation
 from stt_drake.core import backend
 from stt_drake.core.belief import GaussianBelief, ObstacleBelief, ObstacleTask
 from stt_drake.core.circulation import carry_circulation
@@ -98,6 +99,26 @@ def worst_margin_so_far(tracker: InvariantTracker) -> str:
         return "none evaluated"
     unit = " m" if name in _METRE_MARGINS else ""
     return f"{name} {record.worst_margin:+.2e}{unit} at t = {record.t_worst:.2f} s"
+
+
+#: The guarantees that are about the obstacles (vacuous in a scenario without any).
+OBSTACLE_INVARIANTS = (
+    "center_avoid_probability",
+    "tube_avoid_probability",
+    "output_avoid_probability",
+)
+#: What metrics.json says of them then (their margin is 1, above every real one, 1 − ε_j).
+NO_OBSTACLE_NOTE = "no obstacle: vacuous, margin 1 by convention"
+
+
+def no_obstacle_notes(invariants: dict[str, Any], obstacles: int) -> dict[str, Any]:
+    """`invariants` (metrics.json's) with, in a scenario without obstacles, a `note`
+    :data:`NO_OBSTACLE_NOTE` on each obstacle guarantee."""
+    if obstacles == 0:
+        for name in OBSTACLE_INVARIANTS:
+            if name in invariants:
+                invariants[name]["note"] = NO_OBSTACLE_NOTE
+    return invariants
 
 
 def failure_reason(error: Exception, t: float) -> str:
@@ -199,7 +220,10 @@ def simulate(
     the step-rate watchdog (:class:`stt_drake.systems.monitor.StepRateWatchdog`) ends it
     early with everything logged up to then and `stop_reason` saying why. A run that
     ends normally, not reached, in a stall (:mod:`stt_drake.core.progress`) has a
-    `stop_reason` naming the stall.
+    `stop_reason` naming the stall. A strict run of a scenario in which an obstacle covers
+    the target for the whole run (Assumption 3, which a non-strict run records) stops
+    before its first step with that reason; ``load_scenario(..., strict=True)`` refuses
+    such a file at load instead.
     """
     strict = scenario.strict if strict is None else strict
     warnings = scenario_warnings(scenario)
@@ -212,11 +236,17 @@ def simulate(
     # Kernel compilation (or its on-disk cache's loading) is not simulation: it is done
     # and timed here, before the clock, and reported apart as compile_time_s.
     compile_time = load_kernels(scenario, built)
-    stopped = failure = None
+    stopped = failure = refused = None
+    if strict:  # a strict run does not start with a broken Assumption 3 (see the docstring)
+        try:
+            check_target_separation(scenario, strict=True)
+        except AssumptionError as error:
+            refused = str(error)
     start = time.perf_counter()
     try:
-        simulator.Initialize()
-        simulator.AdvanceTo(scenario.duration)
+        if refused is None:
+            simulator.Initialize()
+            simulator.AdvanceTo(scenario.duration)
     except Exception as error:  # every run ends with its metrics and log written
         # In strict mode the monitor fails the step of the first violation, so an error
         # with a violation on record is that stop.
@@ -235,7 +265,9 @@ def simulate(
     stalls = find_stalls(
         log.t, log.center, log.attraction_point, stall_rule(scenario), scenario.target_set_radius
     )
-    if stopped is not None:
+    if refused is not None:
+        cause = f"strict mode did not start the run: {refused}"
+    elif stopped is not None:
         cause = f"strict mode stopped the run at the first violated guarantee: {stopped}"
     elif failure is not None:
         cause = failure_reason(failure, sim_time)
@@ -282,7 +314,7 @@ def simulate(
         "stop_reason": stop_reason,
         "strict_stop": stopped,
         "first_violation": tracker.first_violation,
-        "invariants": tracker.as_dict(),
+        "invariants": no_obstacle_notes(tracker.as_dict(), len(scenario.obstacles)),
         "reach": reach.as_dict(),
         "warnings": warnings,
         "assumptions": assumptions + separation_after_entry(log, t_reach),
@@ -403,6 +435,9 @@ def summary(result: RunResult) -> str:
     lines.append(f"  guarantees (worst margin, at time; holds if ≥ −{m['holds_tolerance']:g}):")
     for name, record in m["invariants"].items():
         verdict = "holds" if record["holds"] else "VIOLATED"
+        if "note" in record:
+            lines.append(f"    {name:<26} {verdict:<8} — {record['note']}")
+            continue
         lines.append(
             f"    {name:<26} {verdict:<8} {record['worst_margin']:+.3e} at t = "
             f"{record['t_worst']:.2f} s"

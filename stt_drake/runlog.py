@@ -138,7 +138,7 @@ class RunLog(Mapping[str, np.ndarray]):
         task = ObstacleTask.of(scenario.obstacles)
         n, m = scenario.dimension, len(scenario.obstacles)
         tube = data["tube"]
-        diagnostics = data["diagnostics"].reshape(-1, 3, m)
+        diagnostics = data["diagnostics"].reshape(samples, 3, m)
         arrays = {
             "name": np.array(scenario.name),
             "t": logs["tube"].sample_times()[:samples].copy(),

@@ -23,7 +23,12 @@ from typing import Any
 import numpy as np
 
 from stt_drake.config import Scenario
-from stt_drake.config.assumptions import SEPARATION_CHECKPOINTS, target_separation
+from stt_drake.config.assumptions import (
+    SEPARATION_CHECKPOINTS,
+    VOIDED_CLAIM,
+    VOIDED_CLAIM_TEXT,
+    target_separation,
+)
 from stt_drake.runlog import RunLog
 
 #: Relative slack on the rate bounds when looking for a belief discontinuity (a smooth
@@ -102,7 +107,7 @@ def separation_after_entry(
         One `assumptions` record per obstacle whose minimum q_j after `final_entry_s` is
         below p_d_j (none when the run never settles in the target set): `assumption`
         ("3"), `obstacle`, `t` (when the minimum occurred), `value` (that q_j),
-        `required` (p_d_j) and `message`.
+        `required` (p_d_j), `claim` ("(i)") and `message`.
     """
     if final_entry_s is None:
         return []
@@ -125,11 +130,12 @@ def separation_after_entry(
                     "t": when,
                     "value": float(q[k, j]),
                     "required": float(p_d[k, j]),
+                    "claim": VOIDED_CLAIM,
                     "message": (
                         f"obstacle {j} came within p_d of the tube's centre after it settled in "
                         f"the target set (t_c = {final_entry_s:.2f} s): q = {q[k, j]:.6g} < "
                         f"p_d = {p_d[k, j]:.6g} at t = {when:.2f} s, so Assumption 3 does "
-                        "not hold in this run"
+                        f"not hold in this run: {VOIDED_CLAIM_TEXT}"
                     ),
                 }
             )
@@ -145,14 +151,16 @@ def target_separation_violations(
     `checkpoints` times evenly over [0, duration] (η: the scenario's final target,
     :func:`stt_drake.config.assumptions.target_separation`). An obstacle for which
     q_j(η, t) < p_d_j still at the last checkpoint is within p_d of the target at the end,
-    so no t_1 exists: the assumption cannot hold. (One that is there at every checkpoint is
-    refused when the scenario is loaded, and a random field's draws are kept only if they
-    satisfy it, see :class:`stt_drake.config.RandomObstacles`.)
+    so no t_1 exists: the assumption cannot hold, and claim (i) of Theorem 3.2 is void.
+    (One that is there at every checkpoint is recorded the same way; a strict scenario
+    refuses it when it is loaded, and a random field's draws are kept only if they satisfy
+    it, see :class:`stt_drake.config.RandomObstacles`.)
 
     Returns:
         One `assumptions` record per such obstacle: `assumption` ("3"), `obstacle`, `t`
-        (the last checkpoint, = duration), `value` (q_j(η, t)), `required` (p_d_j) and
-        `message` (which also says since when it has been below p_d).
+        (the last checkpoint, = duration), `value` (q_j(η, t)), `required` (p_d_j), `claim`
+        ("(i)", the claim of Theorem 3.2 it voids) and `message` (which also says since
+        when it has been below p_d).
     """
     if not scenario.obstacles:
         return []
@@ -169,10 +177,12 @@ def target_separation_violations(
                 "t": float(times[-1]),
                 "value": float(q[-1, j]),
                 "required": float(p_d[j]),
+                "claim": VOIDED_CLAIM,
                 "message": (
                     f"obstacle {j} is within p_d of the target at the end (explicit obstacle): "
                     f"q = {q[-1, j]:.6g} < p_d = {p_d[j]:.6g} from t = {since:.2f} s to the "
-                    f"end ({times[-1]:.2f} s), so Assumption 3 cannot hold"
+                    f"end ({times[-1]:.2f} s), so Assumption 3 cannot hold: "
+                    f"{VOIDED_CLAIM_TEXT}"
                 ),
             }
         )

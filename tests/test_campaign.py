@@ -32,6 +32,7 @@ from stt_drake.campaign import (
     sample_true_obstacles,
     sample_xi,
 )
+from stt_drake.campaign.folder import record_line
 from stt_drake.cli.main import main
 from stt_drake.run import simulate
 
@@ -62,8 +63,11 @@ def _summary(out: Path) -> dict:
 
 
 def _records(out: Path) -> list[dict]:
+    """Every line of runs.jsonl (duplicates kept), by run, without its checksum."""
     lines = (out / "runs.jsonl").read_text().splitlines()
-    return sorted((json.loads(line) for line in lines), key=lambda r: r["run"])
+    records = [json.loads(line) for line in lines]
+    assert all(isinstance(r.pop("sha256"), str) for r in records)  # every line is signed
+    return sorted(records, key=lambda r: r["run"])
 
 
 def _without_wall_time(summary: dict) -> dict:
@@ -483,8 +487,10 @@ def test_an_existing_campaign_needs_resume_and_the_same_spec(randomised, tmp_pat
 
 
 def test_records_of_an_older_version_without_stalls_are_kept_on_resume(randomised, tmp_path):
-    """Run records written before `stop_reason` and `stalls` existed are valid: a resume
-    keeps them (no malformed line, no run redone) and reads them as None and []."""
+    """Run records without `stop_reason` and `stalls` (written before they existed) are
+    valid: a resume keeps them (no malformed line, no run redone) and reads them as None
+    and []. (Signed here: records of the versions before checksums are redone, see
+    test_hostile_cli.)"""
     _, out = randomised
     old = tmp_path / "old"
     old.mkdir()
@@ -493,7 +499,7 @@ def test_records_of_an_older_version_without_stalls_are_kept_on_resume(randomise
     for record in _records(out):
         record.pop("stop_reason", None)
         record.pop("stalls", None)
-        lines.append(json.dumps(record) + "\n")
+        lines.append(record_line(record) + "\n")
     (old / "runs.jsonl").write_text("".join(lines))
     assert main(_randomisation_args(old, "--resume", "--no-figures")) == 1
     assert (old / "runs.jsonl").read_text() == "".join(lines)

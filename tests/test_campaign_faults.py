@@ -24,9 +24,15 @@ from distributed import LocalCluster
 from test_plotting import make_log
 
 from stt_drake.campaign import CampaignSpec, ClosedLoop, run_campaign, run_seed
-from stt_drake.campaign.folder import load_runs
+from stt_drake.campaign.folder import (
+    load_runs,
+    read_records,
+    record_checksum,
+    record_line,
+    scan_runs,
+)
 from stt_drake.cli.main import main
-from stt_drake.runlog import RunLog, strict_json
+from stt_drake.runlog import RunLog
 
 ROOT = Path(__file__).resolve().parent.parent
 CASE1 = ROOT / "diagrams" / "omni_hardware_case1.yaml"
@@ -89,20 +95,26 @@ def test_load_runs_skips_and_counts_every_kind_of_garbage(tmp_path):
     path = tmp_path / "runs.jsonl"
     good = [{"run": i, "seed": run_seed(0, i), "x": [1.0, i]} for i in range(3)]
     good[2]["x"] = [math.inf, -math.inf]  # written as null, named in "non_finite", restored
+    nowhere = {"run": 8, "seed": 1, "non_finite": {"/nowhere/deep": "inf"}}
     garbage = [
         b"garbage {", b"[1, 2]", b"{}", b'{"run": -1, "seed": 3}', b'{"run": true, "seed": 3}',
         b'{"run": 7, "seed": "s"}', b"\xff\xfe not utf-8", b"[" * 100_000,
-        b'{"run": 8, "seed": 1, "non_finite": {"/nowhere/deep": "inf"}}',
+        json.dumps({**nowhere, "sha256": record_checksum(nowhere)}).encode(),
+        json.dumps(good[0]).encode(),  # no checksum: an older version's line, or edited
+        record_line(good[1]).replace("1.0", "2.0").encode(),  # edited: checksum mismatch
     ]  # fmt: skip
-    lines = [json.dumps(good[0]).encode(), *garbage[:5], json.dumps(good[1]).encode()]
-    lines += [*garbage[5:], strict_json(good[2]).encode(), b'{"run": 1, "seed": 9']
+    lines = [record_line(good[0]).encode(), *garbage[:5], record_line(good[1]).encode()]
+    lines += [*garbage[5:], record_line(good[2]).encode(), b'{"run": 1, "seed": 9']
     path.write_bytes(b"\n".join(lines))  # the last line is torn: no newline
     records, malformed = load_runs(path)
     assert records == {r["run"]: r for r in good} and malformed == len(garbage)
+    found = scan_runs(path)
+    assert found.tampered == {0: "no checksum", 1: "checksum mismatch"}
     refused, malformed = load_runs(path, valid=lambda r: r["run"] != 1)
     assert sorted(refused) == [0, 2] and malformed == len(garbage) + 1
-    assert path.read_bytes().endswith(strict_json(good[2]).encode() + b"\n")  # torn line cut
+    assert path.read_bytes().endswith(record_line(good[2]).encode() + b"\n")  # torn line cut
     assert b"Infinity" not in path.read_bytes()
+    assert sorted(read_records(path)) == [0, 1, 2]  # for reading results: unchecked
 
 
 def test_malformed_lines_are_skipped_counted_and_their_runs_redone(tmp_path, capsys):

@@ -436,12 +436,12 @@ def test_epsilon_one_leaves_no_room_for_p_d():
 
 
 def test_boundary_values_that_are_allowed():
-    """The closed ends are accepted: p_d = 1, k3 = 0, update_rate_hz = 0, and r_max equal
-    to both set radii."""
+    """The closed ends are accepted: k3 = 0, update_rate_hz = 0, and r_max equal to both
+    set radii (p_d = 1 is not: :func:`test_p_d_one_can_never_hold_and_is_refused`)."""
     scenario = parse_scenario(
         scenario_text(
             {
-                ("obstacles", 0, "p_d"): 1.0,
+                ("obstacles", 0, "p_d"): 0.999999,
                 ("tube", "k3"): 0.0,
                 ("tube", "update_rate_hz"): 0.0,
                 ("tube", "r_max"): 0.5,
@@ -450,9 +450,20 @@ def test_boundary_values_that_are_allowed():
             }
         )
     )
-    assert scenario.obstacles[0].p_d == 1.0
+    assert scenario.obstacles[0].p_d == 0.999999
     assert scenario.tube.k3 == 0.0
     assert scenario.tube.r_max == 0.5
+
+
+def test_p_d_one_can_never_hold_and_is_refused():
+    """p_d = 1 asks P(‖c − O_j‖ ≥ r_o + r_min) = 1 of a Gaussian centre, which has
+    unbounded support: Assumption 3 can never hold, so it stays a refusal (strict or
+    not), for an obstacle and for a random field."""
+    message = assert_rejected(
+        scenario_text({("obstacles", 0, "p_d"): 1.0}), f"{OBSTACLE0}.p_d", "Gaussian"
+    )
+    assert "unbounded support" in message
+    assert_rejected(scenario_text(_random(p_d=1.0)), f"{RO}.p_d", "can never hold")
 
 
 # --------------------------------------------------------------------------- ν (soft-min)
@@ -508,7 +519,9 @@ def test_nu_zero_is_derived_from_the_obstacle_count(count):
         )
     )
     assert len(scenario.obstacles) == count
-    assert scenario.nu == pytest.approx(2.0 * math.log(count + 1) / 0.1, rel=1e-12)
+    # Without obstacles ν does not matter (r = r_max): it is derived as for one obstacle.
+    expected = 2.0 * math.log(max(count, 1) + 1) / 0.1
+    assert scenario.nu == pytest.approx(expected, rel=1e-12)
 
 
 # --------------------------------------------------------------------------- unknown keys
@@ -1079,7 +1092,9 @@ def test_a_negative_seed_override_is_refused(tmp_path):
 
 def test_an_obstacle_that_leaves_the_target_is_accepted():
     """Assumption 3 needs the obstacles to leave the target eventually: one that starts
-    on it and moves away is fine; one that never leaves it is refused."""
+    on it and moves away is fine; one that never leaves it breaks an assumption of the
+    theorem, not a rule of the file: it loads (the run records it, claim (i) void), and a
+    strict scenario refuses it."""
     leaving = {
         "motion": waypoints([0.0, 4.0], [[4.5, 4.5], [4.5, 8.0]]),
         "radius": 0.2,
@@ -1090,8 +1105,11 @@ def test_an_obstacle_that_leaves_the_target_is_accepted():
     assert len(parse_scenario(scenario_text({("obstacles",): [leaving]})).obstacles) == 1
     staying = {**leaving, "motion": waypoints([0.0, 4.0], [[4.5, 8.0], [4.5, 4.5]])}
     staying["motion"].fields["positions"] = [[4.5, 4.5], [4.6, 4.5]]
+    assert len(parse_scenario(scenario_text({("obstacles",): [staying]})).obstacles) == 1
     assert_rejected(
-        scenario_text({("obstacles",): [staying]}), "scenario.obstacles[0]", "Assumption 3"
+        scenario_text({("obstacles",): [staying], ("strict",): True}),
+        "scenario.obstacles[0]",
+        "Assumption 3",
     )
 
 

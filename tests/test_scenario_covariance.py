@@ -351,12 +351,13 @@ def test_target_separation_uses_the_exact_anisotropic_probability(tmp_path):
             assert separation.q[k, j] == pytest.approx(expected, rel=1e-12, abs=1e-15), (t, j)
 
 
-def test_an_obstacle_with_a_covariance_sitting_on_the_target_is_refused(tmp_path):
+def test_an_obstacle_with_a_covariance_sitting_on_the_target_is_refused_when_strict(tmp_path):
     text = omni_text("    covariance: [[0.04, 0.0], [0.0, 0.01]]\n").replace(
         "start: [2.5, 2.5]", "start: [4.5, 4.4]"
     )
+    assert len(load(text, tmp_path).obstacles) == 1  # runs; the breach is recorded
     with pytest.raises(AssumptionError) as info:
-        load(text, tmp_path)
+        load("strict: true\n" + text, tmp_path)
     assert_names(str(info.value), OBSTACLE0, "Assumption 3")
 
 

@@ -48,10 +48,12 @@ from stt_drake.config import (
     Scenario,
     ScenarioError,
 )
+from stt_drake.config.source import short_repr
 from stt_drake.core.belief import obstacle_rate_bounds, obstacle_sigma_bounds
 from stt_drake.core.control import ERROR_SATURATION, transformed_error
 from stt_drake.core.fixed_rate import BeliefRateBounds
 from stt_drake.core.probability import PRUNE_HEADROOM_NU, period_avoid_probability
+from stt_drake.core.tube import default_nu
 from stt_drake.systems.plants.franka import fr3_lever_arm_bounds
 
 #: ρ₁ at the saturated error: the largest pull-back gain of stage 1 (≈ 21.4).
@@ -70,20 +72,39 @@ def radius_lower_bound(scenario: Scenario) -> float:
     return scenario.tube.r_min - math.log(count + 1) / scenario.nu
 
 
-def following_speed(scenario: Scenario) -> float:
-    """The speed (m/s) at which the saturated controller can bring the output back towards
-    the centre at the tube boundary, after what the plant adds (module docstring)."""
-    stage_one = scenario.controller.kappa[0] * RHO_MAX * max(radius_lower_bound(scenario), 0.0)
+def following_terms(scenario: Scenario, nu: float | None = None) -> tuple[float, float, str]:
+    """(pull, loss, what the loss is): the saturated stage-1 pull-back at the tube boundary,
+    g·κ₁·ρ_max·r_low (m/s; r_low with `nu` in place of the scenario's ν when given), and
+    what the plant adds on its own (m/s; module docstring)."""
+    if nu is None:
+        r_low = radius_lower_bound(scenario)
+    else:
+        count = len(scenario.obstacles)
+        r_low = (
+            scenario.tube.r_max if count == 0 else scenario.tube.r_min - math.log(count + 1) / nu
+        )
+    stage_one = scenario.controller.kappa[0] * RHO_MAX * max(r_low, 0.0)
     plant = scenario.plant
     if isinstance(plant, OmniRobot):
         gain = min(1.0, plant.wheel_radius / plant.nominal_wheel_radius)
-        return gain * stage_one - float(np.linalg.norm(plant.disturbance_amplitude))
+        loss = float(np.linalg.norm(plant.disturbance_amplitude))
+        return gain * stage_one, loss, "‖disturbance_amplitude‖"
     band = np.asarray(scenario.controller.funnels[0].end, dtype=float)
     if isinstance(plant, Quadrotor):
-        return stage_one - float(np.linalg.norm(band))
+        return stage_one, float(np.linalg.norm(band)), "the velocity funnel's final band"
     if isinstance(plant, FrankaArm):
-        return stage_one - float(fr3_lever_arm_bounds() @ band)
+        loss = float(fr3_lever_arm_bounds() @ band)
+        return stage_one, loss, "the joint-velocity funnel's final band through the lever arms"
     raise TypeError(f"no following speed for plant {type(plant).__name__}")
+
+
+def following_speed(scenario: Scenario) -> float:
+    """The speed (m/s) at which the saturated controller can bring the output back towards
+    the centre at the tube boundary, after what the plant adds (module docstring); ≤ 0 when
+    the plant's own drift can outrun the pull-back (refused at load when max_center_speed
+    is derived, :func:`validate_real_time`)."""
+    pull, loss, _what = following_terms(scenario)
+    return pull - loss
 
 
 def level_set_speeds(scenario: Scenario) -> np.ndarray:
@@ -105,7 +126,15 @@ def level_set_speeds(scenario: Scenario) -> np.ndarray:
 def center_speed(scenario: Scenario) -> float:
     """v_c: `tube.max_center_speed`, or when 0 a third of the following speed left after
     the fastest level set, so that the demand 2 v_c + w stays below what the plant can
-    follow."""
+    follow.
+
+    The arithmetic: with F = :func:`following_speed` and w = the fastest level set,
+    v_c = (F − w)/3 when F > w (then 2 v_c + w = (2F + w)/3 < F), else F/3 (no v_c keeps
+    the demand below F; the run warns). Both are > 0 exactly when F > 0. F ≤ 0 — the
+    plant's drift at least the saturated pull-back κ₁·ρ_max·r_low, e.g. a given ν just
+    above ln(n_o + 1)/r_min makes r_low tiny — has no positive v_c at all (the output can
+    leave the tube whatever the centre does), and such a scenario is refused at load
+    (:func:`validate_real_time`), so a validated scenario's v_c is positive."""
     if scenario.tube.max_center_speed > 0.0:
         return scenario.tube.max_center_speed
     spare = following_speed(scenario) - float(np.max(level_set_speeds(scenario), initial=0.0))
@@ -189,6 +218,8 @@ def validate_real_time(scenario: Scenario) -> None:
             f"(got {tube.max_center_speed!r})"
         )
     available = following_speed(scenario)
+    if tube.max_center_speed == 0.0 and available <= 0.0:
+        raise ScenarioError(_unfollowable(scenario, available))
     if tube.max_center_speed > 0.0 and tube.max_center_speed >= available:
         raise ScenarioError(
             "scenario.tube.max_center_speed: must be below the speed the plant can follow "
@@ -204,6 +235,34 @@ def validate_real_time(scenario: Scenario) -> None:
                 f"{period:.4g} s is too long: {reason}; the largest admissible period is "
                 f"{longest:.4g} s (update_rate_hz ≥ {1.0 / longest:.4g})"
             )
+
+
+def _unfollowable(scenario: Scenario, available: float) -> str:
+    """The refusal of a scenario whose following speed is ≤ 0 with a derived
+    max_center_speed: the numbers, and the field to change (tube.nu when a given ν is why,
+    i.e. the derived ν = 2 ln(n_o + 1)/r_min would leave a positive speed)."""
+    tube = scenario.tube
+    pull, loss, what = following_terms(scenario)
+    derived_nu = default_nu(len(scenario.obstacles), tube.r_min)
+    derived_pull, _, _ = following_terms(scenario, derived_nu)
+    given_nu = tube.nu > 0.0 and derived_pull > loss
+    path = "scenario.tube.nu" if given_nu else "scenario.tube.max_center_speed"
+    fix = (
+        f"raise nu (0 derives {derived_nu:.4g}, r_low = r_min/2, which leaves "
+        f"{derived_pull - loss:.4g} m/s)"
+        if given_nu
+        else "raise controller.kappa or tube.r_min, or lower the plant's disturbance"
+    )
+    return (
+        f"{path}: no max_center_speed can be derived: the plant can follow at "
+        f"{available:.4g} m/s ≤ 0 — the saturated controller pulls back at most "
+        f"κ₁·ρ_max·r_low = {pull:.4g} m/s (κ₁ = {scenario.controller.kappa[0]:g}, "
+        f"ρ_max = {RHO_MAX:.3g}, r_low = r_min − ln(n_o + 1)/ν = "
+        f"{radius_lower_bound(scenario):.4g} m with ν = {scenario.nu:.6g}), and "
+        f"{what} adds {loss:.4g} m/s — so the output can leave the tube whatever the centre "
+        f"does (max_center_speed would be {available / 3.0:.3g} m/s: the centre could not "
+        f"move); {fix} (got {short_repr(tube.nu if given_nu else tube.max_center_speed)})"
+    )
 
 
 def scenario_warnings(scenario: Scenario) -> list[str]:

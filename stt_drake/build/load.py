@@ -7,15 +7,22 @@ from pathlib import Path
 
 from stt_drake.build.checks import check_buildable
 from stt_drake.config import Scenario, complete_scenario, read_scenario, read_scenario_text
+from stt_drake.config.assumptions import check_target_separation
 
 
-def load_scenario(path: str | Path, seed: int | None = None) -> Scenario:
+def load_scenario(path: str | Path, seed: int | None = None, strict: bool = False) -> Scenario:
     """Load, expand and validate a scenario file; raises ScenarioError on any bad input.
 
     `seed`, when given, replaces the file's `seed` before anything random is drawn, so a
-    run is reproduced from (file, seed) alone.
+    run is reproduced from (file, seed) alone. `strict` (``stt-drake run --strict``) makes
+    the scenario strict, as `strict: true` in the file does: a broken assumption of the
+    theorem that the run would otherwise record is refused
+    (:func:`stt_drake.config.assumptions.check_target_separation`).
     """
     scenario = read_scenario(path, seed)
+    if strict:
+        scenario.strict = True
+        check_target_separation(scenario)
     check_buildable(scenario)
     return scenario
 

@@ -4,7 +4,9 @@
   processes, started with the "forkserver" method. A worker process that dies (killed,
   out of memory, a crash in native code) breaks the whole pool: :func:`execute` raises
   :class:`~concurrent.futures.process.BrokenProcessPool` after handing over every batch
-  that finished, and the caller may :meth:`LocalPool.restart` it and redo the rest.
+  that finished, and the caller may :meth:`LocalPool.restart` it and redo the rest. The
+  forkserver and the workers die with the process that made the pool, also when it is
+  SIGKILLed (:mod:`stt_drake.campaign.lifeline`).
 * :class:`DaskCluster`: the executor of a Dask ``distributed`` client. The scheduler is
   reached and a worker awaited when it is made (before the campaign does any work), each
   within a timeout; while runs are out, a scheduler that is lost, or no worker for the
@@ -24,6 +26,7 @@ from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
+from stt_drake.campaign.lifeline import PRELOAD_MODULE, mark_pool_parent, worker_lifeline
 from stt_drake.campaign.spec import CampaignError, CampaignStoppedError
 
 #: How long :func:`execute` waits for a batch before it looks at the cluster's health (s).
@@ -33,6 +36,9 @@ POLL_S = 1.0
 DASK_TIMEOUT_S = 60.0
 #: Address schemes a Dask client can use (``host:port`` alone means tcp).
 DASK_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
+#: ``--workers`` may ask for at most this many processes per core this process may use
+#: (each local worker imports pydrake, ~0.3-0.8 GB; more than the cores only waits).
+MAX_WORKERS_PER_CORE = 4
 
 
 def default_workers() -> int:
@@ -41,6 +47,22 @@ def default_workers() -> int:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - not on Linux
         return os.cpu_count() or 1
+
+
+def check_workers(workers: int | None) -> None:
+    """Refuse a ``--workers`` below 1 or above :data:`MAX_WORKERS_PER_CORE` × the cores.
+
+    Raises:
+        CampaignError: naming ``--workers`` and the bound.
+    """
+    if workers is None:
+        return
+    most = MAX_WORKERS_PER_CORE * default_workers()
+    if not 1 <= workers <= most:
+        raise CampaignError(
+            f"--workers: must be in [1, {most}] ({MAX_WORKERS_PER_CORE} per core of the "
+            f"{default_workers()} this process may use) (got {workers})"
+        )
 
 
 def check_scheduler_address(address: str) -> None:
@@ -64,6 +86,9 @@ class LocalPool:
     server: workers fork from a clean process that has imported pydrake but never run a
     simulation or started a thread (plain "fork" from the campaign process would copy a
     process that has simulated; "spawn" re-imports pydrake in every worker, ~2-3 s each).
+    The server first imports :data:`~stt_drake.campaign.lifeline.PRELOAD_MODULE` and each
+    worker runs :func:`~stt_drake.campaign.lifeline.worker_lifeline`, so they die with
+    this process however it ends.
     """
 
     restartable = True
@@ -71,11 +96,14 @@ class LocalPool:
     def __init__(self, workers: int | None = None, preload: Sequence[str] = ()) -> None:
         self.slots = default_workers() if workers is None else workers
         self._context = multiprocessing.get_context("forkserver")
-        self._context.set_forkserver_preload(list(preload))
+        mark_pool_parent()
+        self._context.set_forkserver_preload([PRELOAD_MODULE, *preload])
         self.executor: cf.Executor = self._new()
 
     def _new(self) -> cf.ProcessPoolExecutor:
-        return cf.ProcessPoolExecutor(max_workers=self.slots, mp_context=self._context)
+        return cf.ProcessPoolExecutor(
+            max_workers=self.slots, mp_context=self._context, initializer=worker_lifeline
+        )
 
     def restart(self) -> None:
         """Replace a broken pool by a fresh one (the forkserver stays)."""

@@ -8,11 +8,13 @@ whatever goes wrong.
 2. The folder is locked (:func:`stt_drake.campaign.folder.folder_lock`), checked to hold
    no other campaign (resume only by the same spec, kept in ``campaign_spec.json``), and
    the closed loop is simulated (true-obstacle campaigns).
-3. Each finished run is appended to ``runs.jsonl`` (strict JSON, one line); a resume
-   skips the runs already there, counts malformed lines (``malformed_lines`` in
-   ``campaign.json``) and redoes their runs. A local worker process that dies is
-   replaced by a fresh pool and its runs redone; a lost Dask scheduler, no Dask worker
-   for the timeout, or local workers dying again and again stop the campaign with
+3. Each finished run is appended to ``runs.jsonl`` (strict JSON, one line, with its
+   checksum: :func:`stt_drake.campaign.folder.record_line`); a resume skips the runs
+   already there, counts malformed lines (``malformed_lines`` in ``campaign.json``; a line
+   whose checksum is missing or wrong is one, and its run is named on stderr) and redoes
+   their runs. A local worker process that dies is replaced by a fresh pool and its runs
+   redone; a lost Dask scheduler, no Dask worker for the timeout, or local workers dying
+   again and again stop the campaign with
    :class:`~stt_drake.campaign.spec.CampaignStoppedError`, everything recorded kept.
 """
 
@@ -32,6 +34,7 @@ from stt_drake.campaign.backends import (
     DASK_TIMEOUT_S,
     Backend,
     check_scheduler_address,
+    check_workers,
     execute,
     open_backend,
 )
@@ -47,7 +50,9 @@ from stt_drake.campaign.folder import (
     Record,
     check_resumable,
     folder_lock,
-    load_runs,
+    record_line,
+    scan_runs,
+    tampered_lines,
 )
 from stt_drake.campaign.randomisation import (
     FAILURES_DIR,
@@ -66,7 +71,7 @@ from stt_drake.campaign.sampling import (
     sample_true_obstacles,
 )
 from stt_drake.campaign.spec import CampaignError, CampaignSpec, CampaignStoppedError
-from stt_drake.runlog import strict_json, unwritable_reason, write_json
+from stt_drake.runlog import unwritable_reason, write_json
 
 __all__ = ["CLOSED_LOOP_FILE", "RUNS_FILE", "SPEC_FILE", "CampaignOutcome", "run_campaign"]
 
@@ -154,8 +159,7 @@ def run_campaign(
     spec.validate()
     if chunk_size is not None and chunk_size < 1:
         raise CampaignError(f"--chunk-size: must be ≥ 1 (got {chunk_size})")
-    if workers is not None and workers < 1:
-        raise CampaignError(f"--workers: must be ≥ 1 (got {workers})")
+    check_workers(workers)
     if not 0.0 < dask_timeout < float("inf"):
         raise CampaignError(f"--dask-timeout: must be a finite time > 0 s (got {dask_timeout})")
     if scheduler is not None:
@@ -224,16 +228,20 @@ def _run_locked(
 
     runs_path = out_dir / RUNS_FILE
     if resume:
-        records, malformed = load_runs(
+        found = scan_runs(
             runs_path, lambda r: r["seed"] == run_seed(spec.seed, r["run"]) and shaped(r)
         )
+        records, malformed = found.records, found.malformed
+        if found.tampered:
+            for line in tampered_lines(found.tampered, records).splitlines():
+                tqdm.write(f"stt-drake campaign: {runs_path}: {line}", file=sys.stderr)
     else:
         runs_path.write_text("")
         records, malformed = {}, 0
     if malformed:
         tqdm.write(
             f"stt-drake campaign: {runs_path}: {malformed} malformed line(s) skipped "
-            "(not a run record of this campaign); their runs are redone",
+            "(not a run record of this campaign, or its checksum failed); their runs are redone",
             file=sys.stderr,
         )
     done = [records[i] for i in range(spec.runs) if i in records]
@@ -263,7 +271,7 @@ def _run_locked(
                                 text, name, record["seed"], spec.seed, record["run"], spec.guide
                             )
                         )
-                stream.write(strict_json(record) + "\n")
+                stream.write(record_line(record) + "\n")
                 records[record["run"]] = record
             stream.flush()
             bar.update(len(batch))

@@ -154,7 +154,7 @@ def summarise_end_to_end(
     tracked = sum(sum(r["tracked"]) for r in simulated)
     lower, upper = clopper_pearson(inside, tracked, CONFIDENCE) if tracked else (None, None)
     return {
-        "holds": _holds(obstacles),
+        "holds": _holds(obstacles) and len(simulated) == runs,  # no run raised
         "procedure": _procedure(family, member, steps),
         "simulated_runs": len(simulated),
         "error_runs": runs - len(simulated),
@@ -246,6 +246,19 @@ def summarise_randomisation(records: Sequence[dict[str, Any]]) -> dict[str, Any]
     }
 
 
+def error_summary(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """``error_runs`` (the runs whose record has status ``error``: the run raised) and
+    ``first_error`` (the lowest such run's ``run``, ``seed`` and ``reason``, or None)."""
+    errors = [r for r in records if r.get("status") == "error"]
+    first = min(errors, key=lambda r: r["run"], default=None)
+    return {
+        "error_runs": len(errors),
+        "first_error": None
+        if first is None
+        else {"run": first["run"], "seed": first["seed"], "reason": first["reason"]},
+    }
+
+
 def write_summary(
     spec: CampaignSpec,
     scenario_name: str,
@@ -278,6 +291,9 @@ def write_summary(
         body["true_obstacle_motion"] = spec.motion
         body["ou_tau_s"] = spec.tau if spec.motion == "ou" else None
         body["closed_loop"] = closed_loop_summary
+    body.update(error_summary(records))
+    if body["error_runs"]:
+        body["holds"] = False  # a run that raised checked nothing: no verdict can hold
     summary = {
         "scenario": scenario_name,
         "scenario_path": str(Path(spec.scenario)),
@@ -490,6 +506,13 @@ def report(summary: dict[str, Any]) -> str:
             lines.append(
                 f"  failing draw: run {failure['run']} seed {failure['seed']} → {failure['yaml']}"
             )
+    if summary.get("error_runs"):
+        first = summary["first_error"]
+        reason = (first["reason"].strip().splitlines() or [""])[0]
+        lines.append(
+            f"  {summary['error_runs']} run(s) raised: first error (run {first['run']}, seed "
+            f"{first['seed']}): {reason[:300]}"
+        )
     if summary.get("malformed_lines"):
         lines.append(
             f"  runs.jsonl: {summary['malformed_lines']} malformed line(s) skipped; their runs "

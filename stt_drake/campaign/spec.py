@@ -14,6 +14,21 @@ from dataclasses import dataclass
 from stt_drake.campaign.sampling import MOTIONS
 
 KINDS = ("true-obstacles", "randomisation", "end-to-end")
+#: The kinds whose runs sample the true obstacles around the belief (``--true-obstacle-motion``
+#: and ``--ou-tau`` apply to them only).
+SAMPLING_KINDS = ("true-obstacles",)
+#: The most runs a campaign (and a comparison's campaign, or its draws) may ask for: every
+#: run is a record kept in memory and a line of runs.jsonl, so a mistyped count is refused
+#: before any work instead of filling the memory or looping at start-up.
+MAX_RUNS = 10_000_000
+#: Defaults of the true-obstacle motion (the spec's, and the command's when not given).
+DEFAULT_MOTION, DEFAULT_TAU = "static", 2.0
+
+
+def check_runs(runs: int, option: str = "--runs") -> None:
+    """Raise CampaignError naming `option` unless 1 ≤ `runs` ≤ :data:`MAX_RUNS`."""
+    if not 1 <= runs <= MAX_RUNS:
+        raise CampaignError(f"{option}: must be ≥ 1 and ≤ {MAX_RUNS:,} (got {runs})")
 
 
 class CampaignError(ValueError):
@@ -34,8 +49,8 @@ class CampaignSpec:
     kind: str = "true-obstacles"
     runs: int = 1000
     seed: int = 0
-    motion: str = "static"
-    tau: float = 2.0
+    motion: str = DEFAULT_MOTION
+    tau: float = DEFAULT_TAU
     #: False: the scenario's guide section is dropped (the reactive tube, same draws).
     guide: bool = True
 
@@ -43,8 +58,7 @@ class CampaignSpec:
         """Raise CampaignError naming the option of the first bad value."""
         if self.kind not in KINDS:
             raise CampaignError(f"--kind: must be one of {', '.join(KINDS)} (got {self.kind!r})")
-        if self.runs < 1:
-            raise CampaignError(f"--runs: must be ≥ 1 (got {self.runs})")
+        check_runs(self.runs)
         if self.seed < 0:
             raise CampaignError(f"--seed: must be ≥ 0 (got {self.seed})")
         if self.motion not in MOTIONS:
@@ -53,3 +67,22 @@ class CampaignSpec:
             )
         if not (self.tau > 0.0 and math.isfinite(self.tau)):
             raise CampaignError(f"--ou-tau: must be a finite time > 0 s (got {self.tau})")
+        if self.kind not in SAMPLING_KINDS and self.motion != DEFAULT_MOTION:
+            raise CampaignError(sampling_only("--true-obstacle-motion", self.kind))
+        if self.tau != DEFAULT_TAU and (self.kind not in SAMPLING_KINDS or self.motion != "ou"):
+            raise CampaignError(sampling_only("--ou-tau", self.kind, self.motion))
+
+
+def sampling_only(option: str, kind: str, motion: str | None = None) -> str:
+    """Why `option` does not apply to a campaign of `kind` (and `motion`)."""
+    if kind not in SAMPLING_KINDS:
+        return (
+            f"{option}: applies only to --kind {' or '.join(SAMPLING_KINDS)} (the true "
+            f"obstacles sampled around the belief); a campaign of --kind {kind} "
+            + (
+                "simulates its own true obstacles (perception: process noise)"
+                if kind == "end-to-end"
+                else "simulates each draw's scripted obstacles"
+            )
+        )
+    return f"{option}: applies only with --true-obstacle-motion ou (got {motion})"

@@ -15,10 +15,18 @@ from stt_drake.campaign.backends import DASK_TIMEOUT_S
 from stt_drake.campaign.executor import RUNS_FILE, run_campaign
 from stt_drake.campaign.report import SUMMARY_FILE, report
 from stt_drake.campaign.sampling import MOTIONS
-from stt_drake.campaign.spec import KINDS, CampaignError, CampaignSpec, CampaignStoppedError
+from stt_drake.campaign.spec import (
+    DEFAULT_MOTION,
+    DEFAULT_TAU,
+    KINDS,
+    MAX_RUNS,
+    SAMPLING_KINDS,
+    CampaignError,
+    CampaignSpec,
+    CampaignStoppedError,
+    sampling_only,
+)
 from stt_drake.cli.main import BadInputError, CommandError, resolve_scenario, results_folder
-
-_DEFAULT_MOTION, _DEFAULT_TAU = "static", 2.0
 
 
 def resume_command(
@@ -28,9 +36,9 @@ def resume_command(
     `workers` or `scheduler` (defaults left out)."""
     words = ["stt-drake", "campaign", spec.scenario, "--runs", str(spec.runs)]
     words += ["--kind", spec.kind, "--seed", str(spec.seed)]
-    if spec.motion != _DEFAULT_MOTION:
+    if spec.motion != DEFAULT_MOTION:
         words += ["--true-obstacle-motion", spec.motion]
-    if spec.tau != _DEFAULT_TAU:
+    if spec.tau != DEFAULT_TAU:
         words += ["--ou-tau", repr(spec.tau)]
     if not spec.guide:
         words += ["--no-guide"]
@@ -41,15 +49,29 @@ def resume_command(
     return shlex.join([*words, "--out", str(out_dir), "--resume"])
 
 
+def _motion(args: argparse.Namespace) -> tuple[str, float]:
+    """The true-obstacle motion and OU time constant asked for, refused (naming the
+    option) when given to a campaign they do not apply to."""
+    given = {"--true-obstacle-motion": args.true_obstacle_motion, "--ou-tau": args.ou_tau}
+    motion = args.true_obstacle_motion or DEFAULT_MOTION
+    for option, value in given.items():
+        if value is not None and args.kind not in SAMPLING_KINDS:
+            raise BadInputError(f"stt-drake campaign: {sampling_only(option, args.kind)}")
+    if args.ou_tau is not None and motion != "ou":
+        raise BadInputError(f"stt-drake campaign: {sampling_only('--ou-tau', args.kind, motion)}")
+    return motion, DEFAULT_TAU if args.ou_tau is None else args.ou_tau
+
+
 def _campaign(args: argparse.Namespace) -> bool:
+    motion, tau = _motion(args)
     args.scenario = resolve_scenario(args.scenario)  # a path, or a packaged scenario's name
     spec = CampaignSpec(
         scenario=str(args.scenario),
         kind=args.kind,
         runs=args.runs,
         seed=args.seed,
-        motion=args.true_obstacle_motion,
-        tau=args.ou_tau,
+        motion=motion,
+        tau=tau,
         guide=not args.no_guide,
     )
     out_dir = args.out
@@ -97,7 +119,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "(the message gives the command that resumes it); 2: bad input.",
     )
     parser.add_argument("scenario", help="scenario YAML, or a packaged scenario's name")
-    parser.add_argument("--runs", type=int, required=True, help="number of runs")
+    parser.add_argument(
+        "--runs", type=int, required=True, help=f"number of runs (at most {MAX_RUNS:,})"
+    )
     parser.add_argument(
         "--kind",
         choices=KINDS,
@@ -121,10 +145,16 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--true-obstacle-motion",
         choices=MOTIONS,
-        default=_DEFAULT_MOTION,
-        help="static: ξ drawn once per run; ou: Ornstein-Uhlenbeck ξ(t), same N(0, I) marginal",
+        default=None,
+        help="true-obstacles kind only: static (default): ξ drawn once per run; ou: "
+        "Ornstein-Uhlenbeck ξ(t), same N(0, I) marginal",
     )
-    parser.add_argument("--ou-tau", type=float, default=_DEFAULT_TAU, help="OU time constant τ (s)")
+    parser.add_argument(
+        "--ou-tau",
+        type=float,
+        default=None,
+        help=f"with --true-obstacle-motion ou: OU time constant τ (s, default {DEFAULT_TAU:g})",
+    )
     parser.add_argument("--chunk-size", type=int, default=None, help="runs per task")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figure")

@@ -1,8 +1,9 @@
 """`stt-drake compare SCENARIO --controllers stt cbf apf --runs N --out DIR`: STT against
-the CBF-QP and potential-field baselines on one scenario (:mod:`stt_drake.compare`).
+the CBF-QP and potential-field baselines on one scenario (:mod:`stt_drake.compare`), or
+every controller on K randomised draws (``--draws K``, :mod:`stt_drake.compare_draws`).
 
 Exit codes: 0 the comparison finished (comparison.json, .md and .png written; the table is
-printed), 1 a campaign stopped, 2 bad input (found before any work).
+printed), 1 a campaign stopped, 2 bad input (found before any simulation).
 """
 
 from __future__ import annotations
@@ -23,6 +24,11 @@ def _compare(args: argparse.Namespace) -> bool:
         return _compare_draws(args, scenario)
     if args.runs is None:
         raise BadInputError("stt-drake compare: --runs: required (or --draws K)")
+    if args.seed is not None:
+        raise BadInputError(
+            "stt-drake compare: --seed: applies only with --draws (the seed of the draws; "
+            "the campaigns of a comparison over --runs use seed 0)"
+        )
     try:
         document = compare(
             scenario,
@@ -33,18 +39,27 @@ def _compare(args: argparse.Namespace) -> bool:
             scheduler=args.scheduler,
             model_error=args.model_error,
             solver=args.solver,
+            resume=args.resume,
         )
     except CompareError as error:
         raise BadInputError(f"stt-drake compare: {error}") from None
     except (CampaignStoppedError, KeyboardInterrupt) as error:
         why = "interrupted" if isinstance(error, KeyboardInterrupt) else str(error)
-        raise CommandError(f"stt-drake compare: stopped: {why}") from None
+        raise CommandError(f"stt-drake compare: stopped: {why}{_resume_hint(args)}") from None
     print(comparison_table(document["rows"]))
     print(f"  wrote {args.out / TABLE_FILE} and comparison.json, comparison.png there")
     return True
 
 
+def _resume_hint(args: argparse.Namespace) -> str:
+    """How to continue a comparison that stopped."""
+    if args.resume:
+        return "; run the same command again to continue"
+    return "; the finished runs are kept: run the same command with --resume to continue"
+
+
 def _compare_draws(args: argparse.Namespace, scenario: Path) -> bool:
+    from stt_drake.campaign import CampaignStoppedError
     from stt_drake.compare import CompareError
     from stt_drake.compare_draws import compare_draws, draws_table
 
@@ -53,20 +68,27 @@ def _compare_draws(args: argparse.Namespace, scenario: Path) -> bool:
             "stt-drake compare: --draws runs on local processes without model error "
             "(drop --scheduler and --model-error)"
         )
+    if args.runs is not None:
+        raise BadInputError(
+            "stt-drake compare: --runs: not with --draws (--runs: one scenario and a campaign "
+            "per controller; --draws: K randomised draws per controller)"
+        )
     try:
         document = compare_draws(
             scenario,
             args.controllers,
             args.draws,
             args.out,
-            seed=args.seed,
+            seed=0 if args.seed is None else args.seed,
             workers=args.workers,
             solver=args.solver,
+            resume=args.resume,
         )
     except CompareError as error:
         raise BadInputError(f"stt-drake compare: {error}") from None
-    except KeyboardInterrupt:
-        raise CommandError("stt-drake compare: stopped: interrupted") from None
+    except (CampaignStoppedError, KeyboardInterrupt) as error:
+        why = "interrupted" if isinstance(error, KeyboardInterrupt) else str(error)
+        raise CommandError(f"stt-drake compare: stopped: {why}{_resume_hint(args)}") from None
     print(draws_table(document["rows"]))
     print(f"  wrote {args.out / 'comparison.md'} and comparison.json, draws.jsonl there")
     return True
@@ -99,7 +121,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="instead: every controller on K randomised draws of the scenario's random_obstacles "
         "(success, stall, timeout and unsafe rates)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the draws (default 0)")
+    parser.add_argument(
+        "--seed", type=int, default=None, help="with --draws: seed of the draws (default 0)"
+    )
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=None, help="local processes (default: cores)")
     where.add_argument("--scheduler", default=None, help="Dask scheduler, e.g. tcp://host:8786")
@@ -113,4 +137,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "--solver", default="osqp", help="the CBF's QP solver: osqp (default) or clarabel"
     )
     parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the comparison in --out: each controller's campaign (or the draws) "
+        "continues; with --runs the closed loops are simulated again",
+    )
     parser.set_defaults(handler=_compare)

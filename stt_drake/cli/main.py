@@ -11,8 +11,10 @@ was missed or the run stopped early (its metrics say why), 2 bad input.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import difflib
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 from importlib.resources import files
@@ -64,21 +66,29 @@ def packaged_scenarios() -> dict[str, Path]:
 
 
 def resolve_scenario(scenario: str | Path) -> Path:
-    """The scenario file `scenario` names: an existing path wins; otherwise a packaged
-    scenario's name (``omni_hardware_case1``, also with ``.yaml``).
+    """The scenario file `scenario` names: an existing path that is not a folder wins;
+    otherwise a packaged scenario's name (``omni_hardware_case1``, also with ``.yaml``).
+    A folder is never a scenario file, so a local folder named like a packaged scenario
+    (``./omni_hardware_case1/``) does not hide it.
 
     Raises:
-        BadInputError: neither an existing file nor a packaged name; the message lists
-            the packaged names closest to it.
+        BadInputError: neither an existing file nor a packaged name (a folder of that
+            name is said to be one); the message lists the packaged names closest to it.
     """
     path = Path(scenario)
-    if path.exists():
+    folder = path.is_dir()
+    if path.exists() and not folder:
         return path
     text = str(scenario)
     packaged = packaged_scenarios()
     name = text.removesuffix(".yaml")
     if name in packaged:
         return packaged[name]
+    if folder:
+        raise BadInputError(
+            f"stt-drake: {text}: is a folder, not a scenario file, and no packaged scenario "
+            "has that name (`stt-drake list` shows them all)"
+        )
     close = difflib.get_close_matches(path.name.removesuffix(".yaml"), packaged, n=5, cutoff=0.5)
     hint = f"; close packaged names: {', '.join(close)}" if close else ""
     raise BadInputError(
@@ -100,10 +110,11 @@ def add_scenario_arguments(
 
 
 def load_scenario_arguments(
-    args: argparse.Namespace, seed: int | None = None
+    args: argparse.Namespace, seed: int | None = None, strict: bool = False
 ) -> tuple[Scenario, Path]:
     """The scenario named by ``args.scenario`` (a path or a packaged name, see
-    :func:`resolve_scenario`; replaced by the file's path; loaded with `seed`) and the
+    :func:`resolve_scenario`; replaced by the file's path; loaded with `seed`, and with
+    `strict` refusing a scenario that breaks Assumption 3 for the whole run) and the
     output folder (``args.out``, default results/<scenario name>/), checked writable
     before any work.
 
@@ -117,7 +128,7 @@ def load_scenario_arguments(
 
     args.scenario = resolve_scenario(args.scenario)
     try:
-        scenario = load_scenario(args.scenario, seed=seed)
+        scenario = load_scenario(args.scenario, seed=seed, strict=strict)
     except ScenarioError as error:
         raise BadInputError(f"stt-drake: bad scenario {args.scenario}: {error}") from error
     out_dir = args.out if args.out is not None else results_folder(scenario.name, "name")
@@ -169,14 +180,38 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `stt-drake` console script: run the subcommand, return its exit
-    code."""
-    args = _parser().parse_args(argv)
+    code.
+
+    A closed output pipe (``stt-drake list | head -3``) ends the command quietly with
+    exit code 1, whichever subcommand it is (the recipe of Python's documentation of
+    SIGPIPE: the rest of the output goes to ``os.devnull``, so the interpreter's final
+    flush raises nothing either).
+    """
     try:
-        succeeded = args.handler(args)
-    except CommandError as error:
-        print(error, file=sys.stderr)
-        return error.exit_code
+        try:
+            args = _parser().parse_args(argv)
+        except SystemExit:  # --help, or a usage error: flushed here, where a closed pipe
+            sys.stdout.flush()  # is caught
+            raise
+        try:
+            succeeded = args.handler(args)
+        except CommandError as error:
+            print(error, file=sys.stderr)
+            return error.exit_code
+        sys.stdout.flush()  # inside the try: a pipe closed on the last lines is caught
+    except BrokenPipeError:
+        _discard_output()
+        return EXIT_FAILURE
     return EXIT_SUCCESS if succeeded else EXIT_FAILURE
+
+
+def _discard_output() -> None:
+    """Point stdout and stderr at os.devnull (a closed pipe: nothing more can be said)."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError):  # not a real file (a test's capture)
+            os.dup2(devnull, stream.fileno())
+    os.close(devnull)
 
 
 if __name__ == "__main__":

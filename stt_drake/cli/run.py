@@ -32,15 +32,24 @@ def _run(args: argparse.Namespace) -> bool:
     from stt_drake.run import simulate, summary, write_outputs
 
     check_seed_argument(args.seed)
-    scenario, out_dir = load_scenario_arguments(args, seed=args.seed)
+    if args.meshcat_host is not None and not args.meshcat:
+        raise BadInputError(
+            "stt-drake: --meshcat-host: applies only with --meshcat (the live view's server)"
+        )
+    scenario, out_dir = load_scenario_arguments(args, seed=args.seed, strict=args.strict)
     if args.no_guide:
         scenario.guide = None
     strict = True if args.strict else None
     if args.meshcat:  # drawn live in Meshcat while it runs; the recording is replay.html
-        from stt_drake.replay import simulate_live
+        from stt_drake.replay import LOCALHOST, MeshcatHostError, simulate_live, start_meshcat
 
+        host = LOCALHOST if args.meshcat_host is None else args.meshcat_host
+        try:  # before anything is simulated: an address that cannot be bound is bad input
+            meshcat = start_meshcat(host)
+        except MeshcatHostError as error:
+            raise BadInputError(f"stt-drake: --meshcat-host: {error}") from None
         result, replay = simulate_live(
-            scenario, out_dir / "replay.html", strict, host=args.meshcat_host, announce=True
+            scenario, out_dir / "replay.html", strict, meshcat=meshcat, announce=True
         )
     else:
         result, replay = simulate(scenario, strict=strict), None
@@ -85,8 +94,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--meshcat-host",
-        default="127.0.0.1",
-        help="interface the live view's Meshcat server listens on (default "
-        "127.0.0.1, the loopback only; '*' for every interface)",
+        default=None,
+        help="with --meshcat: interface the live view's Meshcat server listens on (default "
+        "127.0.0.1, the loopback only; '*' for every interface); one this machine cannot "
+        "listen on is refused (exit 2) before the run",
     )
     parser.set_defaults(handler=_run)

@@ -6,11 +6,17 @@
 * seeds: integers in [0, :data:`MAX_SEED`];
 * the simulator: a Drake integration scheme, a step, an accuracy and a real-time pacing a
   run can work with (:func:`check_simulator`);
-* a memory budget: the run's logs and obstacles are estimated (:func:`estimate_run_bytes`)
-  and a scenario that would need more than the budget is refused, naming the field that
-  drives the estimate, the estimate and the budget (:func:`check_memory`). The budget is
+* a memory budget: the run's logs and obstacles are estimated (:func:`estimate_run_bytes`,
+  with Drake's loggers' reserve of :data:`DRAKE_LOG_CAPACITY` samples), and so is what a
+  `perception:` chain draws and holds (:mod:`stt_drake.config.perception_budget`); a
+  scenario that would need more than the budget is refused, naming the field that drives
+  the largest part, the estimate and the budget (:func:`check_memory`). The budget is
   :data:`DEFAULT_MEMORY_BUDGET_GB`; the scenario's `max_memory_gb` or the environment
-  variable :data:`MEMORY_BUDGET_ENV` (in that order) replace it.
+  variable :data:`MEMORY_BUDGET_ENV` (in that order) replace it;
+* a work budget: the wall time the obstacles and the schedules cost over the run's
+  integrator steps, and the copies of a sensor's latency ring, must stay below
+  :data:`DEFAULT_WORK_BUDGET_S` (or :data:`WORK_BUDGET_ENV`) (:func:`check_work`);
+* the schedules' length (:func:`stt_drake.config.schedules.check_schedules`).
 
 :func:`require` is how every rule of the scenario modules is checked (here so that
 :mod:`stt_drake.config.validate` and the section modules it calls share it without an
@@ -26,6 +32,8 @@ from typing import Any
 
 from pydrake.systems.analysis import GetIntegrationSchemes, SimulatorConfig
 
+from stt_drake.config.perception_budget import perception_demands, ring_copy_seconds
+from stt_drake.config.schedules import check_schedules, schedule_entries
 from stt_drake.config.schema import FrankaArm, Scenario, ScenarioError
 from stt_drake.config.source import short_repr
 from stt_drake.core.belief import has_full_covariance
@@ -66,8 +74,43 @@ OBSTACLE_VALUES_PER_SAMPLE = 10
 #: doubling (up to 2×), and the run log copies it once.
 LOG_COPIES = 3
 
-#: Bytes per obstacle outside the logs: its schema objects, belief rows and law tables.
+#: Bytes per obstacle outside the logs: its schema objects, belief rows and law tables (and
+#: a tracker's slot, a few hundred bytes).
 OBSTACLE_BYTES = 4096
+
+#: Samples Drake's loggers reserve at least (``VectorLog::kDefaultCapacity``): a short run
+#: of many obstacles holds this many (measured: 5 000 tracked obstacles over 1 s took
+#: 1.2 GB in the loggers for 51 samples).
+DRAKE_LOG_CAPACITY = 1000
+
+#: Logged values per obstacle and sample that perception adds: its true centre (n) and the
+#: tracker's update count (1); the belief's n² covariance entries are logged as well.
+PERCEPTION_VALUES_PER_SAMPLE = 1
+
+#: Wall seconds one obstacle costs per integrator step, measured here: with perception
+#: (the tracker's prediction, the monitor's exact full-covariance margins of every track in
+#: numpy) 24-29 µs for 500-5 000 tracked obstacles (5 000: 113 steps in 16.2 s); a scripted
+#: belief 16 µs (omni_cluttered_50, 0.8 ms per step), far less for pruned obstacles.
+PERCEPTION_STEP_SECONDS = 30e-6
+SCRIPTED_STEP_SECONDS = 16e-6
+
+#: Wall seconds one schedule entry costs per integrator step: a schedule is evaluated from
+#: its lists (O(N) each time; measured: a 9 996-entry 2D covariance schedule added 11 ms to
+#: every step of the omni base, 1.1 µs per entry).
+SCHEDULE_ENTRY_STEP_SECONDS = 1.1e-6
+
+#: Steps per simulated second the obstacle count is judged at (the default max_step_size,
+#: 0.01 s): a run over the work budget at this rate is too long for its obstacles; one
+#: within it is over the budget for its step rate (max_step_size, log_period,
+#: sensor_period).
+NOMINAL_STEP_RATE = 100.0
+
+#: The estimated wall time a run may cost (s): an hour; the environment variable
+#: :data:`WORK_BUDGET_ENV` replaces it.
+DEFAULT_WORK_BUDGET_S = 3600.0
+
+#: Environment variable that replaces :data:`DEFAULT_WORK_BUDGET_S` (seconds).
+WORK_BUDGET_ENV = "STT_DRAKE_WORK_BUDGET_S"
 
 _GB = 1e9
 
@@ -163,21 +206,32 @@ def logged_samples(scenario: Scenario) -> int:
 
 
 def estimate_run_bytes(
-    samples: int, obstacles: int, dimension: int, covariance: bool = False
+    samples: int,
+    obstacles: int,
+    dimension: int,
+    covariance: bool = False,
+    perception: bool = False,
 ) -> int:
     """Bytes a run needs for its logs and obstacles (an estimate, see the constants):
     LOG_COPIES·8·samples·(obstacles·(n + OBSTACLE_VALUES_PER_SAMPLE) +
     FIXED_VALUES_PER_SAMPLE) + obstacles·OBSTACLE_BYTES; with `covariance` (some obstacle
-    has a full covariance: every Σ_j is logged) n² more values per obstacle and sample."""
-    per_obstacle = obstacle_values_per_sample(dimension, covariance)
+    has a full covariance: every Σ_j is logged) n² more values per obstacle and sample, with
+    `perception` n + :data:`PERCEPTION_VALUES_PER_SAMPLE` more (`samples`: what the loggers
+    hold, at least :data:`DRAKE_LOG_CAPACITY` in a run, see :func:`check_memory`)."""
+    per_obstacle = obstacle_values_per_sample(dimension, covariance, perception)
     values = obstacles * per_obstacle + FIXED_VALUES_PER_SAMPLE
     return LOG_COPIES * 8 * samples * values + obstacles * OBSTACLE_BYTES
 
 
-def obstacle_values_per_sample(dimension: int, covariance: bool = False) -> int:
-    """Logged values per obstacle and sample: n + :data:`OBSTACLE_VALUES_PER_SAMPLE`, and
-    the n² entries of Σ_j when the run logs full covariances."""
+def obstacle_values_per_sample(
+    dimension: int, covariance: bool = False, perception: bool = False
+) -> int:
+    """Logged values per obstacle and sample: n + :data:`OBSTACLE_VALUES_PER_SAMPLE`, the
+    n² entries of Σ_j when the run logs full covariances, and the true centre and update
+    count of a tracked obstacle."""
     extra = dimension * dimension if covariance else 0
+    if perception:
+        extra += dimension + PERCEPTION_VALUES_PER_SAMPLE
     return dimension + OBSTACLE_VALUES_PER_SAMPLE + extra
 
 
@@ -211,43 +265,167 @@ def drawn_count(scenario: Scenario) -> tuple[int, str]:
     return max(spec.count, 0), f"{path}.count"
 
 
-def check_memory(scenario: Scenario, drawn: bool = False) -> None:
-    """Refuse a scenario whose estimated memory (:func:`estimate_run_bytes`) exceeds the
-    budget (:func:`memory_budget_bytes`): the listed obstacles plus the random field at
-    its largest count, or (`drawn`: the field is already among `obstacles`) the obstacles
-    as they are. Needs a finite duration and log_period > 0 (checked first)."""
-    budget, source = memory_budget_bytes(scenario)
+def _obstacle_counts(scenario: Scenario, drawn: bool) -> tuple[int, int, str]:
+    """(listed obstacles, the random field's largest count, the field that sets it); with
+    `drawn` the field is already among the listed ones."""
     field_count, field_path = (0, "") if drawn else drawn_count(scenario)
-    listed = len(scenario.obstacles)
+    return len(scenario.obstacles), field_count, field_path
+
+
+def _obstacle_field(listed: int, field_count: int, field_path: str) -> tuple[str, Any]:
+    """The field that sets the obstacle count, and its value to echo."""
+    if field_count >= listed and field_path:
+        return field_path, field_count
+    return "scenario.obstacles", f"{listed} obstacles"
+
+
+def check_memory(scenario: Scenario, drawn: bool = False) -> None:
+    """Refuse a scenario whose estimated memory exceeds the budget
+    (:func:`memory_budget_bytes`): the logs (:func:`estimate_run_bytes`, for the logged
+    samples but at least :data:`DRAKE_LOG_CAPACITY`) of the listed obstacles plus the
+    random field at its largest count, or (`drawn`: the field is already among
+    `obstacles`) the obstacles as they are, and the perception chain's draws and ring
+    (:func:`stt_drake.config.perception_budget.perception_demands`). Names the field that
+    drives the largest part. Needs a finite duration and log_period > 0 (checked first)."""
+    budget, source = memory_budget_bytes(scenario)
+    listed, field_count, field_path = _obstacle_counts(scenario, drawn)
     obstacles = listed + field_count
     samples = logged_samples(scenario)
-    covariance = any(has_full_covariance(o) for o in scenario.obstacles)
-    needed = estimate_run_bytes(samples, obstacles, scenario.dimension, covariance)
+    held = max(samples, DRAKE_LOG_CAPACITY)
+    perception = scenario.perception
+    covariance = perception is not None or any(has_full_covariance(o) for o in scenario.obstacles)
+    n = scenario.dimension
+    logs = estimate_run_bytes(held, obstacles, n, covariance, perception is not None)
+    demands = []
+    if perception is not None:
+        demands = perception_demands(perception, obstacles, n, scenario.duration)
+    needed = logs + sum(demand.bytes for demand in demands)
     if needed <= budget:
         return
-    per_obstacle = obstacle_values_per_sample(scenario.dimension, covariance)
-    if obstacles * per_obstacle <= FIXED_VALUES_PER_SAMPLE:
+    per_obstacle = obstacle_values_per_sample(n, covariance, perception is not None)
+    largest = max(demands, key=lambda demand: demand.bytes, default=None)
+    if largest is not None and largest.bytes > logs:
+        path, value = largest.path, getattr(perception, largest.path.rsplit(".", 1)[1])
+    elif obstacles * per_obstacle <= FIXED_VALUES_PER_SAMPLE:
         path, value = "scenario.log_period", scenario.log_period
-    elif field_count >= listed:
-        path, value = field_path, field_count
     else:
-        path, value = "scenario.obstacles", f"{listed} obstacles"
+        path, value = _obstacle_field(listed, field_count, field_path)
+    parts = [
+        f"logs {logs / _GB:.3g} GB: {samples} logged samples (Drake's loggers hold "
+        f"{DRAKE_LOG_CAPACITY} at least) of {obstacles} obstacles in {n}D: duration/log_period "
+        f"+ 1 samples × (n + {OBSTACLE_VALUES_PER_SAMPLE}{' + n²' if covariance else ''}"
+        f"{' + n + 1' if perception is not None else ''} values per obstacle + "
+        f"{FIXED_VALUES_PER_SAMPLE}) × 8 B × {LOG_COPIES} copies"
+    ]
+    parts += [f"{demand.what} = {demand.bytes / _GB:.3g} GB" for demand in demands]
     raise ScenarioError(
-        f"{path}: the run would need about {needed / _GB:.3g} GB ({samples} logged samples "
-        f"of {obstacles} obstacles in {scenario.dimension}D: duration/log_period + 1 samples "
-        f"× (n + {OBSTACLE_VALUES_PER_SAMPLE}{' + n²' if covariance else ''} values per "
-        f"obstacle + {FIXED_VALUES_PER_SAMPLE})"
-        f" × 8 B × {LOG_COPIES} copies), above the memory budget of {budget / _GB:.3g} GB "
-        f"({source}); raise log_period, shorten duration or use fewer obstacles, or raise "
+        f"{path}: the run would need about {needed / _GB:.3g} GB ({'; '.join(parts)}), above "
+        f"the memory budget of {budget / _GB:.3g} GB ({source}); {_advice(path)}, or raise "
         f"the budget with max_memory_gb in the scenario or {MEMORY_BUDGET_ENV} "
         f"(got {short_repr(value)})"
     )
 
 
+def _advice(path: str) -> str:
+    """What to change, for the field a budget names."""
+    if path.startswith("scenario.perception."):
+        return (
+            "raise truth_period or sensor_period, lower latency, shorten duration or use "
+            "fewer obstacles"
+        )
+    return "raise log_period, shorten duration or use fewer obstacles"
+
+
+def work_budget_seconds() -> tuple[float, str]:
+    """The work budget (s) and where it comes from: :data:`WORK_BUDGET_ENV`, else the
+    default."""
+    text = os.environ.get(WORK_BUDGET_ENV, "").strip()
+    if not text:
+        return DEFAULT_WORK_BUDGET_S, "the default"
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0.0):
+        raise ScenarioError(
+            f"{WORK_BUDGET_ENV}: must be a number of seconds > 0 (got {short_repr(text)})"
+        )
+    return value, WORK_BUDGET_ENV
+
+
+def step_rate(scenario: Scenario) -> tuple[float, str]:
+    """Integrator steps per simulated second a run takes at least, and the field that sets
+    it: Drake never steps longer than max_step_size and ends a step at every periodic event
+    (a logged sample, a sensor sample)."""
+    rates = [
+        (1.0 / scenario.simulator.max_step_size, "scenario.simulator.max_step_size"),
+        (1.0 / scenario.log_period, "scenario.log_period"),
+    ]
+    perception = scenario.perception
+    if perception is not None and perception.sensor_period > 0.0:
+        rates.append((1.0 / perception.sensor_period, "scenario.perception.sensor_period"))
+    return max(rates)
+
+
+def check_work(scenario: Scenario, drawn: bool = False) -> None:
+    """Refuse a scenario whose estimated wall time exceeds the work budget
+    (:func:`work_budget_seconds`): obstacles × integrator steps (duration × :func:`step_rate`)
+    × the cost of one obstacle per step (:data:`PERCEPTION_STEP_SECONDS` or
+    :data:`SCRIPTED_STEP_SECONDS`), plus the copies of a sensor's latency ring
+    (:func:`stt_drake.config.perception_budget.ring_copy_seconds`) and the evaluations of
+    the schedules (entries × steps × :data:`SCHEDULE_ENTRY_STEP_SECONDS`). Names the obstacle
+    count (or the duration, for one obstacle) when the run is over the budget at
+    :data:`NOMINAL_STEP_RATE`, else the field that sets the step rate; the latency when the
+    ring's copies are the largest part, the longest schedule when the schedules are."""
+    budget, source = work_budget_seconds()
+    listed, field_count, field_path = _obstacle_counts(scenario, drawn)
+    obstacles = listed + field_count
+    perception = scenario.perception
+    cost = PERCEPTION_STEP_SECONDS if perception is not None else SCRIPTED_STEP_SECONDS
+    rate, rate_path = step_rate(scenario)
+    steps = scenario.duration * rate
+    stepping = obstacles * steps * cost
+    copying = 0.0
+    if perception is not None:
+        copying = ring_copy_seconds(perception, obstacles, scenario.dimension, scenario.duration)
+    schedules = schedule_entries(scenario)
+    entries = sum(count for _path, count in schedules)
+    scheduling = steps * entries * SCHEDULE_ENTRY_STEP_SECONDS
+    total = stepping + copying + scheduling
+    if total <= budget:
+        return
+    if scheduling > max(stepping, copying):
+        path, value = max(schedules, key=lambda item: item[1])
+        value = f"{value} entries"
+    elif copying > stepping:
+        path, value = "scenario.perception.latency", perception.latency
+    elif obstacles * scenario.duration * NOMINAL_STEP_RATE * cost > budget:
+        if obstacles > 1:
+            path, value = _obstacle_field(listed, field_count, field_path)
+        else:
+            path, value = "scenario.duration", scenario.duration
+    else:
+        path = rate_path
+        value = scenario.simulator.max_step_size if "simulator" in path else 1.0 / rate
+    ring = f" + copying the latency ring {copying:.3g} s" if copying > 0.0 else ""
+    if scheduling > 0.0:
+        ring += (
+            f" + evaluating {entries} schedule entries at every step "
+            f"({SCHEDULE_ENTRY_STEP_SECONDS * 1e6:.2g} µs each) {scheduling:.3g} s"
+        )
+    raise ScenarioError(
+        f"{path}: the run would take about {total:.3g} s of wall time ({obstacles} obstacles × "
+        f"{steps:.3g} integrator steps (duration × {rate:.4g} steps/s, set by {rate_path}) × "
+        f"{cost * 1e6:.3g} µs per obstacle and step = {stepping:.3g} s{ring}), above the work "
+        f"budget of {budget:.4g} s ({source}); use fewer obstacles, a shorter duration or "
+        f"fewer steps, or raise the budget with {WORK_BUDGET_ENV} (got {short_repr(value)})"
+    )
+
+
 def check_limits(scenario: Scenario, drawn: bool = False) -> None:
     """Every limit of this module, in the order a user would fix them: numbers, seeds,
-    the duration and log period, the simulator, the memory budget (`drawn`: the random
-    field is already among the obstacles)."""
+    the duration and log period, the simulator, the schedules' length, the memory budget
+    and the work budget (`drawn`: the random field is already among the obstacles)."""
     check_numbers(scenario, "scenario")
     check_seed(scenario.seed, "scenario.seed")
     if scenario.random_obstacles is not None:
@@ -267,4 +445,6 @@ def check_limits(scenario: Scenario, drawn: bool = False) -> None:
             f"(got {scenario.max_memory_gb!r})"
         )
     check_simulator(scenario)
+    check_schedules(scenario)
     check_memory(scenario, drawn)
+    check_work(scenario, drawn)

@@ -4,8 +4,9 @@ import math
 
 import numpy as np
 
+from stt_drake.config.covariance import GAUSSIAN_P_D_RULE, SIGMA_MIN
 from stt_drake.config.schema import AssumptionError, Obstacle, RandomObstacles, Scenario
-from stt_drake.config.validate import SIGMA_MIN, require, require_range, require_vector
+from stt_drake.config.validate import require, require_range, require_vector
 from stt_drake.core.motion import Oscillation, oscillation_positions
 from stt_drake.core.probability import avoid_probability
 
@@ -51,6 +52,7 @@ def expand_random_obstacles(scenario: Scenario) -> None:
         "must lie in (epsilon_range high, 1]",
         spec.p_d,
     )
+    require(spec.p_d < 1.0, f"{path}.p_d", GAUSSIAN_P_D_RULE, spec.p_d)
     require_range(spec.amplitude_range, f"{path}.amplitude_range", 0.0, math.inf)
     require_range(spec.frequency_range_hz, f"{path}.frequency_range_hz", 0.0, math.inf)
     rng = np.random.default_rng([spec.seed, scenario.seed])

@@ -108,7 +108,8 @@ class RandomObstacles:
 @dataclass
 class TubeConfig:
     """Tube law constants (Eqs. (4) and (14)). `nu` = 0 means "derive it":
-    ν = 2 ln(n_o + 1)/r_min, which keeps r ≥ r_min/2. `update_rate_hz` = 0 integrates the
+    ν = 2 ln(n_o + 1)/r_min, which keeps r ≥ r_min/2 (without obstacles, where r = r_max
+    whatever ν, as for one obstacle: 2 ln 2/r_min). `update_rate_hz` = 0 integrates the
     centre in continuous time; > 0 runs the fixed-rate (real-time) discrete update.
     `max_center_speed` (m/s) bounds |ċ| always, and is the speed of a recovery (0 derives
     it from what the plant can follow, see :func:`stt_drake.build.feasibility.following_speed`)."""
@@ -250,16 +251,20 @@ class Perception:
     seconds, each obstacle within `sensing_range` metres of the robot (0: everywhere) is
     detected unless dropped (probability `dropout_probability`), at its true centre plus
     Gaussian noise of standard deviation `noise_sigma` (m, isotropic) or covariance
-    `noise_covariance` (n×n, m²), delivered `latency` seconds later. Tracker: one
+    `noise_covariance` (n×n, m²) — a file writes one of the two (the loader refuses both:
+    :func:`stt_drake.config.validate_perception.check_noise_fields`) —, delivered `latency`
+    seconds later (the first detection must reach the tracker before the run ends). Tracker: one
     constant-velocity Kalman filter per obstacle with white-acceleration density
     `tracker_process_density` (m²/s³) and measurement noise `tracker_noise_sigma` (m) or
-    `tracker_noise_covariance` (m²) — by default the true ones (a calibrated tracker) —
+    `tracker_noise_covariance` (m²; one of the two) — by default the true ones (a
+    calibrated tracker) —
     new tracks with velocity standard deviation `initial_velocity_sigma` (m/s), lost after
     `track_timeout` seconds without a detection; after a correction the published belief
     moves to the new track over `blend_time` seconds (≤ sensor_period; 0: it jumps, and the
     tube recovers from the jump). `full_covariance`: the tube uses each
     track's Σ exactly (else σ² = λ_max(Σ), exact only for isotropic noise models).
-    Draws come from the scenario's `seed`."""
+    Draws come from the scenario's `seed`. At least one obstacle is needed; what the chain
+    draws and holds counts in the memory budget (:mod:`stt_drake.config.perception_budget`)."""
 
     process_noise_density: float = 0.0
     truth_period: float = 0.01

@@ -1,10 +1,12 @@
 """The rules of the paper and of the file format that a scenario can be checked against
 without building anything: the limits of :mod:`stt_drake.config.limits` (finite, sane
-numbers, seeds, the simulator, memory), the name, shapes, signs, ranges, the obstacles'
-uncertainty (σ, σ schedules, full covariances Σ_j: :func:`require_covariance`), ν, the plant's
-fields, the controller's gains and funnels, the initial avoidance condition q_j(s, 0) > ε_j
-(J(0) > 0 in the proof of Theorem 3.2 (ii)), Assumption 3 at the target
-(:mod:`stt_drake.config.assumptions`) and the `guide:` section
+numbers, seeds, the simulator, memory, work, schedule lengths), the name, shapes, signs,
+ranges, the obstacles' uncertainty (σ, σ schedules, full covariances Σ_j:
+:mod:`stt_drake.config.covariance`), p_d < 1, ν, the plant's fields, the controller's
+gains and funnels, the initial avoidance condition q_j(s, 0) > ε_j (J(0) > 0 in the proof
+of Theorem 3.2 (ii)), Assumption 3 at the target in a strict scenario
+(:mod:`stt_drake.config.assumptions`), the `perception:` section
+(:mod:`stt_drake.config.validate_perception`) and the `guide:` section
 (:mod:`stt_drake.config.validate_guide`). Every broken rule raises :class:`ScenarioError`
 naming the full field path and the rule (:func:`require`, from
 :mod:`stt_drake.config.limits`).
@@ -16,6 +18,12 @@ import re
 import numpy as np
 
 from stt_drake.config.assumptions import check_target_separation
+from stt_drake.config.covariance import (
+    GAUSSIAN_P_D_RULE,
+    require_covariance,
+    require_covariances,
+    require_sigma,
+)
 from stt_drake.config.limits import check_limits, require
 from stt_drake.config.schema import (
     PLANT_DIMENSION,
@@ -25,30 +33,17 @@ from stt_drake.config.schema import (
     ControllerConfig,
     Obstacle,
     OmniRobot,
-    Perception,
     Quadrotor,
     Scenario,
     ScenarioError,
 )
 from stt_drake.config.validate_guide import validate_guide
+from stt_drake.config.validate_perception import validate_perception
 from stt_drake.core import anisotropic
 from stt_drake.core.belief import axes_covariance, has_full_covariance
 from stt_drake.core.motion import ConstantVelocity, Motion, Oscillation, Waypoints
 from stt_drake.core.probability import avoid_probability
 from stt_drake.core.tube import minimum_nu
-
-#: Smallest standard deviation σ of an obstacle centre (m). Below it the obstacle is, for
-#: the numerics, a knife edge: the tube law's switching band around the ε level set is
-#: about 5σ wide, so the error-controlled integrator needs steps of ~σ/|ċ| s (omni case 1
-#: with one obstacle's σ changed runs in 4 845 steps at σ = 1 mm and is stopped by the
-#: step-rate watchdog at 0.1 mm, 6.6e4 steps/s; at 1e-6 the UAV paper scenario even
-#: breaks center_avoid_probability between steps); the 2D avoidance probability (Marcum Q
-#: series) costs O(distance/σ) per evaluation (1 000× its normal cost at σ = 0.01 mm);
-#: and the numpy reference's noncentral-χ² series returned NaN from distance/σ ≈ 2e5 on
-#: ("the tube law produced a non-finite value"; it now switches to large-offset forms,
-#: :data:`stt_drake.core.probability.LARGE_OFFSET`). An obstacle known to better than
-#: 1 mm is a deterministic obstacle for this tool: give σ = 0.001.
-SIGMA_MIN = 1e-3
 
 #: Fastest fixed-rate tube update (Hz): a real-time rate; faster is continuous time (0).
 MAX_UPDATE_RATE_HZ = 1e4
@@ -80,18 +75,6 @@ def validate_name(name: str) -> None:
     )
 
 
-def require_sigma(value: float, path: str) -> None:
-    """σ ≥ :data:`SIGMA_MIN` (see there why)."""
-    require(
-        value >= SIGMA_MIN,
-        path,
-        f"must be ≥ {SIGMA_MIN:g} (a standard deviation in metres; below 1 mm the tube "
-        "law's level sets are too thin to integrate and its probabilities too costly to "
-        "evaluate: treat such an obstacle as certain with sigma 0.001)",
-        value,
-    )
-
-
 def check_one_uncertainty(given: list[str], path: str) -> None:
     """Of the uncertainty forms `given` (names of :data:`UNCERTAINTY_FIELDS`, in that order)
     at most one, sigma with sigma_schedule counting as one: ScenarioError naming both
@@ -104,53 +87,6 @@ def check_one_uncertainty(given: list[str], path: str) -> None:
                     f"{', '.join(UNCERTAINTY_FIELDS)} (one description of the centre's "
                     "uncertainty; sigma may come with sigma_schedule, which replaces it)"
                 )
-
-
-def require_covariance(matrix: list[list[float]], n: int, path: str) -> None:
-    """A covariance Σ (m²) the anisotropic law can use: n×n, finite, symmetric (within
-    :data:`stt_drake.core.anisotropic.SYMMETRY_RTOL` relative), positive definite, with
-    λ_max/λ_min ≤ :data:`stt_drake.core.anisotropic.MAX_CONDITION`, and its smallest
-    standard deviation √λ_min ≥ :data:`SIGMA_MIN` (the rule of :func:`require_sigma`)."""
-    require(
-        len(matrix) == n and all(hasattr(row, "__len__") and len(row) == n for row in matrix),
-        path,
-        f"must be a {n}x{n} matrix ({n} rows of {n} entries, m²) in this {n}D scenario",
-        matrix,
-    )
-    values = np.asarray(matrix, dtype=float)
-    require(bool(np.all(np.isfinite(values))), path, "must be finite", matrix)
-    asymmetry = float(np.max(np.abs(values - values.T)))
-    allowed = anisotropic.SYMMETRY_RTOL * float(np.max(np.abs(values)))
-    require(
-        asymmetry <= allowed,
-        path,
-        f"must be symmetric: max |Σ − Σᵀ| = {asymmetry:.3g} exceeds "
-        f"{anisotropic.SYMMETRY_RTOL:g} × max |Σ|",
-        matrix,
-    )
-    eigenvalues = np.linalg.eigvalsh(0.5 * (values + values.T))
-    smallest, largest = float(eigenvalues[0]), float(eigenvalues[-1])
-    require(
-        smallest > 0.0,
-        path,
-        f"must be symmetric positive definite: smallest eigenvalue {smallest:.3g}",
-        matrix,
-    )
-    require(
-        largest <= anisotropic.MAX_CONDITION * smallest,
-        path,
-        f"must be well conditioned: eigenvalue ratio λ_max/λ_min = {largest / smallest:.3g} "
-        f"exceeds {anisotropic.MAX_CONDITION:g} (numerically singular)",
-        matrix,
-    )
-    require(
-        math.sqrt(smallest) >= SIGMA_MIN,
-        path,
-        f"must have every standard deviation ≥ {SIGMA_MIN:g} m: the smallest, √λ_min, is "
-        f"{math.sqrt(smallest):.3g} m (the rule of sigma: below 1 mm the tube law's level "
-        "sets are too thin to integrate)",
-        matrix,
-    )
 
 
 def require_vector(value: list[float], length: int, path: str) -> None:
@@ -240,6 +176,7 @@ def _validate_obstacle(obstacle: Obstacle, n: int, path: str) -> None:
         f"must lie in (epsilon, 1] = ({obstacle.epsilon}, 1]",
         obstacle.p_d,
     )
+    require(obstacle.p_d < 1.0, f"{path}.p_d", GAUSSIAN_P_D_RULE, obstacle.p_d)
 
 
 def _validate_full_covariance(obstacle: Obstacle, n: int, path: str) -> None:
@@ -292,65 +229,7 @@ def _validate_full_covariance(obstacle: Obstacle, n: int, path: str) -> None:
             schedule,
         )
         _require_step_times(schedule.times, f"{where}.times")
-        for k, matrix in enumerate(schedule.covariances):
-            require_covariance(matrix, n, f"{where}.covariances[{k}]")
-
-
-def _validate_perception(perception: Perception, scenario: Scenario) -> None:
-    """The `perception:` section: finite non-negative rates and densities, periods > 0,
-    valid noise covariances, a timeout longer than a detection's way to the tracker, and a
-    continuous tube (the fixed-rate guarantee needs belief rate bounds a tracker lacks)."""
-    path = "scenario.perception"
-    n = scenario.dimension
-    for name in ("process_noise_density", "sensing_range", "latency"):
-        value = getattr(perception, name)
-        require(0.0 <= value < math.inf, f"{path}.{name}", "must be finite and ≥ 0", value)
-    for name in ("truth_period", "sensor_period", "initial_velocity_sigma", "track_timeout"):
-        value = getattr(perception, name)
-        require(0.0 < value < math.inf, f"{path}.{name}", "must be finite and > 0", value)
-    require(
-        0.0 <= perception.dropout_probability < 1.0,
-        f"{path}.dropout_probability",
-        "must be in [0, 1) (1 would never detect anything)",
-        perception.dropout_probability,
-    )
-    density = perception.tracker_process_density
-    require(
-        density is None or 0.0 <= density < math.inf,
-        f"{path}.tracker_process_density",
-        "must be finite and ≥ 0 (m²/s³)",
-        density,
-    )
-    for name in ("noise_sigma", "tracker_noise_sigma"):
-        value = getattr(perception, name)
-        if value is not None:
-            require(0.0 < value < math.inf, f"{path}.{name}", "must be finite and > 0 (m)", value)
-    for name in ("noise_covariance", "tracker_noise_covariance"):
-        matrix = getattr(perception, name)
-        if matrix is not None:
-            require_covariance(matrix, n, f"{path}.{name}")
-    require(
-        0.0 <= perception.blend_time <= perception.sensor_period,
-        f"{path}.blend_time",
-        f"must be in [0, sensor_period = {perception.sensor_period:g}] s (a blend ends "
-        "before the next correction)",
-        perception.blend_time,
-    )
-    way = perception.sensor_period + perception.latency + perception.sensor_period
-    require(
-        perception.track_timeout > way,
-        f"{path}.track_timeout",
-        f"must exceed 2·sensor_period + latency = {way:g} s (the way of a detection to the "
-        "tracker), or every new track is lost at once",
-        perception.track_timeout,
-    )
-    require(
-        scenario.tube.update_rate_hz == 0.0,
-        "scenario.tube.update_rate_hz",
-        "must be 0 (continuous time) with perception: the fixed-rate tube's period guarantee "
-        "needs bounds on how fast the belief moves, which a tracker's corrections do not have",
-        scenario.tube.update_rate_hz,
-    )
+        require_covariances(schedule.covariances, n, f"{where}.covariances")
 
 
 def _validate_controller(config: ControllerConfig, n: int, stages: int) -> None:
@@ -507,7 +386,7 @@ def validate(scenario: Scenario) -> None:
         tube.nu,
     )
     if scenario.perception is not None:
-        _validate_perception(scenario.perception, scenario)
+        validate_perception(scenario.perception, scenario)
     if scenario.guide is not None:
         validate_guide(scenario.guide, scenario)
     _validate_plant(scenario)

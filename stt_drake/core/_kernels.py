@@ -1000,7 +1000,10 @@ def tube_advance(
     at_start = _point_quantile_lower_bounds(
         center, mean, sigma, radius, epsilon, reach1, spread1, prune_above
     )
-    if not start_radius <= np.min(at_start):  # the first update (NaN), or a belief jump
+    smallest = math.inf  # min over the obstacles (none: inf, as the reference's initial)
+    for j in range(count):
+        smallest = min(smallest, at_start[j])
+    if not start_radius <= smallest:  # the first update (NaN), or a belief jump
         start_radius = soft_min_radius(at_start, r_max, nu)
     certified = np.empty(count, dtype=np.bool_)
     allowed = np.empty(count)

@@ -88,8 +88,16 @@ def draw_truth_deviation(
 ) -> TruthPath:
     """Draw δ_j(t) for `count` obstacles in R^dimension on [0, ≥ horizon] (model in the module
     docstring): white acceleration noise of spectral density `density` q (m²/s³) per axis,
-    exact discretisation on a grid of period `period` (s), δ(0) = δ̇(0) = 0."""
+    exact discretisation on a grid of period `period` (s), δ(0) = δ̇(0) = 0.
+
+    With `density` 0 the truth is exactly the scripted motion: nothing is drawn (`rng` is
+    left untouched) and the path is δ ≡ 0 on one grid interval spanning the same [0, end]
+    (the Cholesky factor of 0·Q does not exist, and K zero rows would cost memory for
+    nothing)."""
     steps = max(math.ceil(horizon / period - _SPAN_SLACK), 1)
+    if density == 0.0:
+        zero = np.zeros((2, count, dimension))
+        return TruthPath(deviation_grid=zero, rate_grid=zero.copy(), period=steps * period)
     h = period
     # Per axis, w_k = L ζ with L the Cholesky factor of q [[h³/3, h²/2], [h²/2, h]].
     factor = np.linalg.cholesky(density * np.array([[h**3 / 3.0, h**2 / 2.0], [h**2 / 2.0, h]]))

@@ -78,8 +78,13 @@ def minimum_nu(obstacle_count: int, r_min: float) -> float:
 
 
 def default_nu(obstacle_count: int, r_min: float) -> float:
-    """Twice :func:`minimum_nu`: guarantees r ≥ r_min/2 whenever every q_j > ε_j."""
-    return 2.0 * minimum_nu(obstacle_count, r_min)
+    """Twice :func:`minimum_nu`: guarantees r ≥ r_min/2 whenever every q_j > ε_j.
+
+    Without obstacles the soft-min has the one argument r_max (r = r_max whatever ν) and
+    :func:`minimum_nu` is 0; ν is then derived as for one obstacle, 2 ln 2/r_min, so it
+    stays a positive, finite number for everything that divides by it (the pruning
+    headroom 40/ν, the level-set speeds)."""
+    return 2.0 * minimum_nu(max(obstacle_count, 1), r_min)
 
 
 #: Width of the boundary layer above each ε level set, as a share of p_d − ε (see the
