@@ -22,6 +22,7 @@ from typing import Any
 from stt_drake.campaign import CampaignError
 from stt_drake.campaign.backends import check_workers
 from stt_drake.campaign.folder import RUNS_FILE, SPEC_FILE, folder_lock
+from stt_drake.config import has_random_field
 from stt_drake.runlog import unwritable_reason
 
 #: The controllers that are not STT (they read the obstacles' scripted belief).
@@ -34,10 +35,16 @@ class CompareError(ValueError):
 
 
 def check_common(schema: Any, controllers: Sequence[str], workers: int | None) -> None:
-    """Refuse what both comparisons refuse (:class:`CompareError`): a baseline on a
+    """Refuse what both comparisons refuse (:class:`CompareError`): a scenario without
+    any obstacle (every row is a true-obstacle check), a baseline on a
     scenario with a ``perception`` section, and a bad ``--workers``. `schema` is the
     parsed scenario (its ``perception`` field is read)."""
     baselines = [c for c in controllers if c in BASELINE_CONTROLLERS]
+    if not schema.obstacles and not has_random_field(schema.random_obstacles):
+        raise CompareError(
+            "scenario.obstacles: compare checks every controller against true obstacles; "
+            "the scenario has none (nothing to compare on)"
+        )
     if getattr(schema, "perception", None) is not None and baselines:
         raise CompareError(
             "scenario.perception: with perception in the loop STT reads the Kalman tracker's "

@@ -428,3 +428,17 @@ def test_compare_over_draws_resumes_its_draws_and_redoes_a_tampered_one(tmp_path
     assert document["draws"] == 3 and document["rows"][0]["draws"] + document["rejected_draws"] == 3
     err = _refused(capsys, *words, "--draws", "3", "--resume", "--seed", "1")
     assert "--resume: seed differs" in err
+
+
+def test_a_scenario_without_obstacles_is_refused_by_compare_and_true_obstacle_campaigns(
+    tmp_path, capsys
+):
+    """Nothing to check against true obstacles: refused up front (it raised after the runs)."""
+    path = tmp_path / "empty.yaml"
+    path.write_text(SHORT[: SHORT.index("obstacles:")] + "obstacles: []\n")
+    code = main(["compare", str(path), "--controllers", "stt", "--runs", "5", "--out",
+                 str(tmp_path / "c")])  # fmt: skip
+    assert code == 2
+    assert "scenario.obstacles" in capsys.readouterr().err
+    assert main(["campaign", str(path), "--runs", "5", "--out", str(tmp_path / "k")]) == 2
+    assert "scenario.obstacles" in capsys.readouterr().err

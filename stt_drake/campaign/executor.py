@@ -115,6 +115,13 @@ def _load_checked_scenario(spec: CampaignSpec, text: str, name: str) -> Any:
                 "scenario.perception: an end-to-end campaign needs a perception section "
                 "(true obstacles, sensor, tracker; see diagrams/omni_tracked.yaml)"
             )
+        if spec.kind == "true-obstacles" and not schema.obstacles and not has_random_field(
+            schema.random_obstacles
+        ):
+            raise CampaignError(
+                "scenario.obstacles: a true-obstacle campaign draws the true centres of the "
+                "obstacles; the scenario has none (nothing to check)"
+            )
         return prepare_scenario(schema, run_seed(spec.seed, 0) if randomising else None)
     except ScenarioError as error:
         if randomising and isinstance(error, AssumptionError):

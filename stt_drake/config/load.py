@@ -234,6 +234,12 @@ def parse_schema(text: str, default_name: str = "scenario", guide: bool = True) 
         raise ScenarioError("scenario: the file must be a mapping of fields")
     _check_keys(Scenario, raw, "scenario")
     _check_required(raw)
+    if "plant" in raw and raw["plant"] is None:  # a Union field: Drake's loader fills a
+        # null `plant:` into an OmniRobot with a None field instead of refusing it
+        raise ScenarioError(
+            "scenario.plant: must be a mapping of fields (an omni robot) or a tagged plant "
+            "(!Quadrotor {...}, !FrankaArm {...}); got an empty value"
+        )
     try:
         scenario = yaml_load_typed(schema=Scenario, data=text)
     except (RuntimeError, ValueError, TypeError, AssertionError, yaml.YAMLError) as error:
