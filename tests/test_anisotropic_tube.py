@@ -152,7 +152,7 @@ def test_repulsion_is_along_the_gradient_of_q(n):
     """One obstacle, no attraction, no circulation: ċ = k2·θ·m with m along ∇q, checked
     against central differences of the exact probability (an independent evaluation)."""
     rng = np.random.default_rng(SEED + 20 * n)
-    law = make_law(n, k1=0.0, k3=0.0, max_center_speed=np.inf)
+    unattracted = make_law(n, k3=0.0, max_center_speed=np.inf)  # k1 > 0 in every law
     found = 0
     for _ in range(600):
         covariance = random_covariance(rng, n, 50.0, 0.4)
@@ -165,6 +165,7 @@ def test_repulsion_is_along_the_gradient_of_q(n):
             covariance[None],
         )
         center = rng.normal(size=n) * 1.2
+        law = unattracted.with_target(center)  # η = c: the attraction k1·cbrt(η − c) is 0
         evaluation = law.evaluate(center, belief)
         q = evaluation.avoid_probability[0]
         if not (0.8 + 0.01 < q < 0.999):

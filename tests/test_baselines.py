@@ -153,7 +153,9 @@ def test_infeasible_qp_falls_back(solver):
 
 
 def _single_obstacle_task(epsilon=0.9, radius=0.3):
-    return ObstacleTask(radius=np.array([radius]), epsilon=np.array([epsilon]), p_d=np.array([1.0]))
+    return ObstacleTask(
+        radius=np.array([radius]), epsilon=np.array([epsilon]), p_d=np.array([0.9999])
+    )
 
 
 def _belief(means, sigma, active=None):
@@ -172,7 +174,7 @@ def test_controller_step_is_the_projection_of_the_nominal_command(solver):
     far off that would forbid everything if it were read): the projection of u_nom on the
     CBF half-plane (μ̇ = 0 at the first update)."""
     task = ObstacleTask(
-        radius=np.array([0.3, 5.0]), epsilon=np.array([0.9, 0.9]), p_d=np.array([1.0, 1.0])
+        radius=np.array([0.3, 5.0]), epsilon=np.array([0.9, 0.9]), p_d=np.array([0.9999, 0.9999])
     )
     goal = GoalSeeking(goal=np.array([3.0, 0.0]), position_gain=1.0, max_speed=1.0)
     plant = NominalPlant(order=1)
@@ -313,7 +315,7 @@ def test_potential_field_controller_respects_the_input_limit(order):
     limit = np.array([0.7, 0.7, 15.0])
     plant = NominalPlant(order=order, mass=1.0, drag=0.2, gravity=9.81 if order == 2 else 0.0)
     field = PotentialField(goal=np.array([3.0, 0.0, 1.0]), attraction_distance=0.5)
-    task = ObstacleTask(radius=np.array([0.3]), epsilon=np.array([0.9]), p_d=np.array([1.0]))
+    task = ObstacleTask(radius=np.array([0.3]), epsilon=np.array([0.9]), p_d=np.array([0.9999]))
     controller = PotentialFieldController(task, 3, plant, field, input_limit=limit)
     context = controller.CreateDefaultContext()
     sigma = 0.05
@@ -337,7 +339,7 @@ def test_second_order_closed_loop_keeps_the_constraint():
     gravity; no wind) with an obstacle drifting across its path at flight height."""
     sigma, epsilon, duration = 0.05, 0.9, 8.0
     start, velocity = np.array([3.0, 0.05, 1.0]), np.array([-0.3, 0.0, 0.0])
-    task = ObstacleTask(radius=np.array([0.4]), epsilon=np.array([epsilon]), p_d=np.array([1.0]))
+    task = ObstacleTask(radius=np.array([0.4]), epsilon=np.array([epsilon]), p_d=np.array([0.9999]))
     controller = ChanceConstrainedCbfController(
         task,
         3,

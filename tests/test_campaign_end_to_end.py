@@ -82,8 +82,10 @@ def test_a_fast_approaching_level_set_is_recovered_from_and_reported(tmp_path):
     """Found by a calibrated campaign (run 33 of 400, campaign seed 4; 1 run in 440): the
     crossing obstacle's true centre wanders fast (q = 0.01 m²/s³) and blended corrections
     move its ε level set onto the tube faster than the tube can leave it (Theorem 3.2 (ii)
-    needs it slower), so the centre margin goes negative at 1.77 s (−0.064). The run must
-    report it by name and recover (the episode ends) — not hide it, not stop."""
+    needs it slower), so the centre margin goes negative: −0.064 at 1.77 s when found, with
+    the tracker consuming every sample one period late (before issue 26); −0.028 at 1.65 s
+    with samples consumed on time. The run must report it by name and recover (the episode
+    ends) — not hide it, not stop."""
     from stt_drake.build import parse_scenario
     from stt_drake.run import simulate
 
@@ -173,11 +175,20 @@ def test_omni_tracked_run_that_broke_centre_avoidance_recovers():
     0; the only one of 2 000): with obstacle 0 (ε = 0.99) a blended correction moves its
     level set onto the tube faster than the tube leaves it; centre avoidance breaks by
     2e-3 at 1.82 s for 0.04 s, reported, recovered, and the robot still reaches."""
+    from dataclasses import replace
+
     from stt_drake.build import load_scenario
     from stt_drake.run import simulate
 
     scenario = load_scenario(DIAGRAMS / "omni_tracked.yaml", seed=728248331)
-    metrics = simulate(scenario).metrics
+    # That campaign ran before issue 26: the tracker then consumed every sample one sensor
+    # period late whatever the latency (it read the sensor's state from before the update
+    # of the same instant). Latency = one period now consumes sample k at (k + 1)·period,
+    # as that run did, and reproduces it (worst margin equal to 1e-13). On time (the
+    # file's latency 0) this run holds, by +3.9e-4 (measured), so the break is replayed
+    # with the delay it was found with.
+    perception = replace(scenario.perception, latency=scenario.perception.sensor_period)
+    metrics = simulate(replace(scenario, perception=perception)).metrics
     center = metrics["invariants"]["center_avoid_probability"]
     assert not center["holds"] and -1e-2 < center["worst_margin"] < 0.0
     assert [e["obstacle"] for e in metrics["recovery"]] == [0]

@@ -157,8 +157,13 @@ def test_sensor_delivers_after_the_latency_with_the_measurement_stamp(latency):
     context = sensor.CreateDefaultContext()
     sensor.GetInputPort("robot_position").FixValue(context, np.zeros(2))
     sensor.GetInputPort("true_obstacle_position").FixValue(context, np.zeros(4))
-    empty = Detections.from_vector(sensor.GetOutputPort("detections").Eval(context), 2)
-    assert not empty.detected.any() and np.all(empty.stamp == -np.inf)
+    first = Detections.from_vector(sensor.GetOutputPort("detections").Eval(context), 2)
+    if latency == 0.0:
+        # Sample 0 is delivered at t = 0 itself (issue 26: a latency L delivers the sample
+        # stamped t at t + L, L = 0 included); before, nothing was until the next period.
+        assert first.detected.all() and np.all(first.stamp == 0.0)
+    else:
+        assert not first.detected.any() and np.all(first.stamp == -np.inf)
     simulator = Simulator(sensor, context)
     simulator.AdvanceTo(0.33)
     sample = Detections.from_vector(sensor.GetOutputPort("detections").Eval(context), 2)

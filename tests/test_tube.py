@@ -86,7 +86,7 @@ d_hat_lists = st.lists(st.floats(-5.0, 5.0), min_size=0, max_size=30)
 @HYPOTHESIS
 @given(d_hat=d_hat_lists, r_max=st.floats(0.01, 3.0), nu=st.floats(0.1, 1e4))
 def test_radius_is_a_lower_soft_min_within_the_log_sum_exp_bound(d_hat, r_max, nu):
-    law = _law(np.zeros(2), r_max=r_max, nu=nu)
+    law = _law(np.zeros(2), r_min=0.5 * r_max, r_max=r_max, nu=nu)  # 0 < r_min < r_max
     values = np.array([*d_hat, r_max])
     smallest = float(np.min(values))
     r = law.radius(np.array(d_hat))
@@ -140,7 +140,7 @@ def test_minimum_nu_and_default_nu_formulas():
 @given(
     count=st.integers(0, 100),
     r_min=st.floats(0.01, 1.0),
-    r_max_extra=st.floats(0.0, 1.0),
+    r_max_extra=st.floats(1e-3, 1.0),  # r_max > r_min
     spread=st.lists(st.floats(0.0, 2.0), min_size=100, max_size=100),
 )
 def test_default_nu_keeps_radius_above_half_r_min(count, r_min, r_max_extra, spread):
@@ -157,13 +157,15 @@ def test_default_nu_keeps_radius_above_half_r_min(count, r_min, r_max_extra, spr
 def test_nu_around_minimum_nu_with_all_obstacles_at_r_min(count):
     r_min = 0.1
     d_hat = np.full(count, r_min)
-    # Worst case r_max = r_min: r = r_min − ln(k+1)/ν exactly.
-    worst = _law(np.zeros(2), r_min=r_min, r_max=r_min, nu=minimum_nu(count, r_min))
-    assert worst.radius(d_hat) == pytest.approx(0.0, abs=1e-15)
-    below = _law(np.zeros(2), r_min=r_min, r_max=r_min, nu=0.99 * minimum_nu(count, r_min))
-    assert below.radius(d_hat) < 0.0
-    above = _law(np.zeros(2), r_min=r_min, r_max=r_min, nu=1.01 * minimum_nu(count, r_min))
-    assert above.radius(d_hat) > 0.0
+    # Worst case r_max = r_min: r = r_min − ln(k+1)/ν exactly. The radius reads only r_max,
+    # ν and d̂, so the laws take r_max = 0.1 with a smaller r_min of their own (a law needs
+    # 0 < r_min < r_max).
+    def worst_case(nu: float) -> TubeLaw:
+        return _law(np.zeros(2), r_min=0.5 * r_min, r_max=r_min, nu=nu)
+
+    assert worst_case(minimum_nu(count, r_min)).radius(d_hat) == pytest.approx(0.0, abs=1e-15)
+    assert worst_case(0.99 * minimum_nu(count, r_min)).radius(d_hat) < 0.0
+    assert worst_case(1.01 * minimum_nu(count, r_min)).radius(d_hat) > 0.0
     safe = _law(np.zeros(2), r_min=r_min, r_max=0.3, nu=default_nu(count, r_min))
     assert safe.radius(d_hat) >= 0.5 * r_min
 
@@ -244,7 +246,9 @@ def test_evaluate_m_points_away_from_the_obstacle_and_v_is_its_rotation_2d():
     cross = only_m[0] * away[1] - only_m[1] * away[0]
     assert abs(cross) <= 1e-12 * np.linalg.norm(only_m) * np.linalg.norm(away)
 
-    only_v = _law(target, k2=0.0, k3=0.4).evaluate(center, belief).center_rate - attraction
+    # k2 > 0 in every law: the v-term is what k3 = 0.4 adds to the same law with k3 = 0.
+    both = _law(target, k2=0.4, k3=0.4).evaluate(center, belief).center_rate
+    only_v = both - attraction - only_m
     rotated = np.array([-m_expected[1], m_expected[0]])
     np.testing.assert_allclose(only_v, 0.4 * theta * rotated, rtol=1e-10)
     assert abs(np.dot(only_v, away)) <= 1e-12 * np.linalg.norm(only_v) * np.linalg.norm(away)

@@ -18,12 +18,14 @@ from stt_drake.systems.plants.franka import FR3_JOINTS, FR3_LINKS, ArmKinematics
 
 
 def check_buildable(scenario: Scenario) -> None:
-    """Every rule that needs a built law or the arm model; raise ScenarioError."""
+    """Every rule that needs a built law or the arm model; raise ScenarioError. The
+    real-time checks come first: they refuse a scenario whose derived max_center_speed
+    would not be positive, before a law is made with it (TubeLaw refuses one)."""
+    validate_real_time(scenario)
     if isinstance(scenario.plant, FrankaArm):
         _validate_franka(scenario)
     else:
         _validate_funnel_starts(scenario)
-    validate_real_time(scenario)
 
 
 def _validate_franka(scenario: Scenario) -> None:

@@ -358,7 +358,9 @@ def add_perception(
     )
     tracking = builder.AddNamedSystem(
         "obstacle_tracker",
-        ObstacleTracker(tracker, count, config.sensor_period, config.blend_time),
+        ObstacleTracker(
+            tracker, count, config.sensor_period, config.blend_time, offset=config.latency
+        ),
     )
     builder.Connect(truth.get_output_port(), sensor.GetInputPort("true_obstacle_position"))
     builder.Connect(robot_output, sensor.GetInputPort("robot_position"))

@@ -211,12 +211,7 @@ def _start_certified_period(scenario: Scenario, upper: float) -> float:
 def validate_real_time(scenario: Scenario) -> None:
     """Refuse a max_center_speed the plant cannot follow and an update period that is too
     long for the obstacles (ScenarioError naming the field, the rule and the limit)."""
-    tube = scenario.tube
-    if not (math.isfinite(tube.max_center_speed) and tube.max_center_speed >= 0.0):
-        raise ScenarioError(
-            "scenario.tube.max_center_speed: must be finite and ≥ 0 (m/s; 0 derives it) "
-            f"(got {tube.max_center_speed!r})"
-        )
+    tube = scenario.tube  # finite and ≥ 0 already (stt_drake.core.rules.check_center_speed)
     available = following_speed(scenario)
     if tube.max_center_speed == 0.0 and available <= 0.0:
         raise ScenarioError(_unfollowable(scenario, available))

@@ -15,8 +15,20 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder, InputPort, LeafSystem, OutputPort
 
-from stt_drake.core.belief import ObstacleModel, ObstacleTask
+from stt_drake.core.belief import (
+    ObstacleModel,
+    ObstacleTask,
+    has_full_covariance,
+    obstacle_belief,
+)
 from stt_drake.core.control import FunnelController
+from stt_drake.core.rules import (
+    NU_HINT,
+    check_initial_avoidance,
+    check_nu_for_count,
+    check_obstacles,
+    checked_by,
+)
 from stt_drake.core.tube import BeliefRateBounds, TubeLaw
 from stt_drake.systems.belief_source import ObstacleBeliefSource
 from stt_drake.systems.controller import STTController
@@ -88,11 +100,25 @@ def AddStt(  # noqa: N802 (Drake's naming of builder functions)
 
     Returns:
         the :class:`SttHandles`.
+
+    Raises:
+        ValueError: (a :class:`stt_drake.core.rules.RuleError`) before anything is added,
+            naming the argument and the rule a scenario file is checked against: an
+            obstacle's task numbers (``AddStt: obstacles[2].epsilon must lie in (0, 1]``),
+            ν against the obstacle count (``law.nu``), and, with `obstacles`, the initial
+            avoidance condition q_j(s, 0) > ε_j at `start` (Definition 2.3).
     """
     if (obstacles is None) == (belief is None):
         raise ValueError("AddStt: give exactly one of `obstacles` and `belief`")
     start = np.asarray(start, dtype=float)
     n = start.shape[0]
+    if obstacles is not None:
+        _check_obstacles(law, start, obstacles, full_covariance)
+    elif task is None:
+        raise ValueError("AddStt: a `belief` port needs the obstacles' `task` (r_o, ε, p_d)")
+    else:
+        with checked_by("AddStt", "law", NU_HINT):
+            check_nu_for_count(law.nu, law.r_min, task.count)
     prefix = f"{name}_" if name else ""
     source = None
     if obstacles is not None:
@@ -103,8 +129,6 @@ def AddStt(  # noqa: N802 (Drake's naming of builder functions)
         task = ObstacleTask.of(obstacles)
         if full_covariance is None:
             full_covariance = source.full_covariance
-    elif task is None:
-        raise ValueError("AddStt: a `belief` port needs the obstacles' `task` (r_o, ε, p_d)")
     full_covariance = bool(full_covariance)
     tube = builder.AddNamedSystem(
         f"{prefix}spatiotemporal_tube",
@@ -143,3 +167,23 @@ def AddStt(  # noqa: N802 (Drake's naming of builder functions)
         control=controller.GetOutputPort("control"),
         output=monitor.GetInputPort("output"),
     )
+
+
+def _check_obstacles(
+    law: TubeLaw,
+    start: np.ndarray,
+    obstacles: Sequence[ObstacleModel],
+    full_covariance: bool | None,
+) -> None:
+    """The rules AddStt can check on scripted obstacles before adding anything (those of a
+    scenario file, :mod:`stt_drake.core.rules`): each obstacle's r_o, ε, p_d, ν against
+    their count, and q_j(s, 0) > ε_j at the start — with Σ_j exactly where the tube will
+    use it."""
+    with checked_by("AddStt"):
+        check_obstacles(obstacles)
+    with checked_by("AddStt", "law", NU_HINT):
+        check_nu_for_count(law.nu, law.r_min, len(obstacles))
+    initial = obstacle_belief(obstacles, start.shape[0], 0.0)
+    exact = [full_covariance is not False and has_full_covariance(o) for o in obstacles]
+    with checked_by("AddStt"):
+        check_initial_avoidance(start, initial, law.r_min, exact)

@@ -47,14 +47,6 @@ def require_sigma(value: float, path: str) -> None:
 MAX_CONDITION = 1e8
 
 
-#: Why p_d = 1 is refused (an obstacle's and a random field's): Assumption 3 can never hold.
-GAUSSIAN_P_D_RULE = (
-    "must be below 1: Assumption 3 asks P(‖c − O_j‖ ≥ r_o + r_min) ≥ p_d, and a Gaussian "
-    "centre has unbounded support, so that probability is below 1 everywhere and p_d = 1 "
-    "can never hold"
-)
-
-
 def distinct_format(value: float, bound: float) -> str:
     """`value` with as many significant digits (3 or more) as it takes to differ from
     `bound` written the same way (a ratio of 1.00000001e8 is not "1e+08 exceeds 1e+08")."""

@@ -20,7 +20,9 @@
 
 :func:`require` is how every rule of the scenario modules is checked (here so that
 :mod:`stt_drake.config.validate` and the section modules it calls share it without an
-import cycle; it is re-exported there).
+import cycle; it is re-exported there); :func:`rule_path` checks a rule of
+:mod:`stt_drake.core.rules`, the one place of the rules the core objects' constructors
+check too, naming the file's field path.
 """
 
 from __future__ import annotations
@@ -28,15 +30,18 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 from pydrake.systems.analysis import GetIntegrationSchemes, SimulatorConfig
 
 from stt_drake.config.perception_budget import perception_demands, ring_copy_seconds
 from stt_drake.config.schedules import check_schedules, schedule_entries
-from stt_drake.config.schema import FrankaArm, Scenario, ScenarioError
+from stt_drake.config.schema import AssumptionError, FrankaArm, Scenario, ScenarioError
 from stt_drake.config.source import short_repr
 from stt_drake.core.belief import has_full_covariance
+from stt_drake.core.rules import InitialConditionError, RuleError, join_field
 
 #: Largest magnitude of any number in a scenario (metres, seconds, gains, ...): a million
 #: metres is far beyond any arena; larger values are typos or attacks (1e308 overflows).
@@ -120,6 +125,22 @@ def require(condition: bool, path: str, rule: str, value: Any) -> None:
     echoed as :func:`stt_drake.config.source.short_repr`)."""
     if not condition:
         raise ScenarioError(f"{path}: {rule} (got {short_repr(value)})")
+
+
+@contextmanager
+def rule_path(path: str, hint: str = "") -> Iterator[None]:
+    """Check a rule of :mod:`stt_drake.core.rules` (the one the constructors of the core
+    objects check too) in the block: its RuleError becomes a ScenarioError
+    "<path>.<field>: <rule> (got <value>)" (`hint` in parentheses after the rule), an
+    InitialConditionError an AssumptionError."""
+    try:
+        yield
+    except RuleError as error:
+        rule = f"{error.rule} ({hint})" if hint else error.rule
+        kind = AssumptionError if isinstance(error, InitialConditionError) else ScenarioError
+        raise kind(
+            f"{join_field(path, error.field)}: {rule} (got {short_repr(error.value)})"
+        ) from None
 
 
 def check_numbers(value: Any, path: str) -> None:

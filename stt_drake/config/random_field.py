@@ -4,11 +4,12 @@ import math
 
 import numpy as np
 
-from stt_drake.config.covariance import GAUSSIAN_P_D_RULE, SIGMA_MIN
+from stt_drake.config.covariance import SIGMA_MIN
 from stt_drake.config.schema import AssumptionError, Obstacle, RandomObstacles, Scenario
 from stt_drake.config.validate import require, require_range, require_vector
 from stt_drake.core.motion import Oscillation, oscillation_positions
 from stt_drake.core.probability import avoid_probability
+from stt_drake.core.rules import GAUSSIAN_P_D_RULE
 
 #: Draws tried per obstacle before the field is refused; a field that has placed none
 #: after this many draws is refused at once (its region leaves almost no room).

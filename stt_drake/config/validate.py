@@ -10,6 +10,12 @@ of Theorem 3.2 (ii)), Assumption 3 at the target in a strict scenario
 (:mod:`stt_drake.config.validate_guide`). Every broken rule raises :class:`ScenarioError`
 naming the full field path and the rule (:func:`require`, from
 :mod:`stt_drake.config.limits`).
+
+The rules of the core objects — the tube constants, ν against the obstacle count, an
+obstacle's r_o, ε, p_d, the controller's gains and funnels, the initial avoidance condition
+— are not written here: they are :mod:`stt_drake.core.rules`, which the constructors of
+TubeLaw, ObstacleTask, BoxFunnel, FunnelController, SpatiotemporalTube and AddStt check
+too, called through :func:`stt_drake.config.limits.rule_path` with the file's field path.
 """
 
 import math
@@ -19,17 +25,15 @@ import numpy as np
 
 from stt_drake.config.assumptions import check_target_separation
 from stt_drake.config.covariance import (
-    GAUSSIAN_P_D_RULE,
     require_covariance,
     require_covariances,
     require_sigma,
 )
-from stt_drake.config.limits import check_limits, require
+from stt_drake.config.limits import check_limits, require, rule_path
 from stt_drake.config.schema import (
     PLANT_DIMENSION,
     PLANT_FUNNEL_DIMENSION,
     PLANT_STAGES,
-    AssumptionError,
     ControllerConfig,
     Obstacle,
     OmniRobot,
@@ -39,11 +43,18 @@ from stt_drake.config.schema import (
 )
 from stt_drake.config.validate_guide import validate_guide
 from stt_drake.config.validate_perception import validate_perception
-from stt_drake.core import anisotropic
 from stt_drake.core.belief import axes_covariance, has_full_covariance
 from stt_drake.core.motion import ConstantVelocity, Motion, Oscillation, Waypoints
-from stt_drake.core.probability import avoid_probability
-from stt_drake.core.tube import minimum_nu
+from stt_drake.core.rules import (
+    check_box_funnel,
+    check_center_speed,
+    check_initial_avoidance,
+    check_kappa,
+    check_nu,
+    check_nu_for_count,
+    check_obstacle_task,
+    check_tube_constants,
+)
 
 #: Fastest fixed-rate tube update (Hz): a real-time rate; faster is continuous time (0).
 MAX_UPDATE_RATE_HZ = 1e4
@@ -141,7 +152,6 @@ def _validate_motion(motion: Motion, n: int, path: str) -> None:
 
 def _validate_obstacle(obstacle: Obstacle, n: int, path: str) -> None:
     _validate_motion(obstacle.motion, n, f"{path}.motion")
-    require(obstacle.radius > 0.0, f"{path}.radius", "must be > 0 (metres)", obstacle.radius)
     require(
         obstacle.sigma > 0.0,
         f"{path}.sigma",
@@ -167,16 +177,8 @@ def _validate_obstacle(obstacle: Obstacle, n: int, path: str) -> None:
         for k, value in enumerate(schedule.values):
             require_sigma(value, f"{path}.sigma_schedule.values[{k}]")
     _validate_full_covariance(obstacle, n, path)
-    require(
-        0.0 < obstacle.epsilon <= 1.0, f"{path}.epsilon", "must lie in (0, 1]", obstacle.epsilon
-    )
-    require(
-        obstacle.epsilon < obstacle.p_d <= 1.0,
-        f"{path}.p_d",
-        f"must lie in (epsilon, 1] = ({obstacle.epsilon}, 1]",
-        obstacle.p_d,
-    )
-    require(obstacle.p_d < 1.0, f"{path}.p_d", GAUSSIAN_P_D_RULE, obstacle.p_d)
+    with rule_path(path):  # r_o > 0, ε ∈ (0, 1], p_d ∈ (ε, 1): the ObstacleTask's rules
+        check_obstacle_task(obstacle.radius, obstacle.epsilon, obstacle.p_d)
 
 
 def _validate_full_covariance(obstacle: Obstacle, n: int, path: str) -> None:
@@ -240,7 +242,8 @@ def _validate_controller(config: ControllerConfig, n: int, stages: int) -> None:
         f"this plant has {stages} stage(s): give {stages} gain(s)",
         config.kappa,
     )
-    require(all(k > 0.0 for k in config.kappa), f"{path}.kappa", "must all be > 0", config.kappa)
+    with rule_path(path):  # the FunnelController's rule
+        check_kappa(config.kappa)
     require(
         len(config.funnels) == stages - 1,
         f"{path}.funnels",
@@ -251,13 +254,8 @@ def _validate_controller(config: ControllerConfig, n: int, stages: int) -> None:
         where = f"{path}.funnels[{i}]"
         for name in ("start", "end", "rate"):
             require_vector(getattr(funnel, name), n, f"{where}.{name}")
-        require(
-            all(0.0 < e < s for s, e in zip(funnel.start, funnel.end, strict=True)),
-            f"{where}.end",
-            "must satisfy 0 < end < start per axis",
-            funnel.end,
-        )
-        require(all(r >= 0.0 for r in funnel.rate), f"{where}.rate", "must be ≥ 0", funnel.rate)
+        with rule_path(where):  # the BoxFunnel's rules
+            check_box_funnel(funnel.start, funnel.end, funnel.rate)
 
 
 def validate_dimension(scenario: Scenario) -> None:
@@ -335,13 +333,12 @@ def validate(scenario: Scenario) -> None:
         scenario.max_steps_per_second,
     )
     tube = scenario.tube
-    require(tube.r_min > 0.0, "scenario.tube.r_min", "must be > 0 (metres)", tube.r_min)
-    require(
-        tube.r_min < tube.r_max,
-        "scenario.tube.r_max",
-        f"must be > r_min = {tube.r_min}",
-        tube.r_max,
-    )
+    with rule_path("scenario.tube"):  # the TubeLaw's rules
+        check_tube_constants(tube.k1, tube.k2, tube.k3, tube.r_min, tube.r_max)
+    with rule_path("scenario.tube", "0 derives it"):
+        check_center_speed(tube.max_center_speed, finite=True)
+        if tube.nu != 0.0:
+            check_nu(tube.nu)
     require(
         tube.r_max <= scenario.initial_set_radius,
         "scenario.tube.r_max",
@@ -354,11 +351,6 @@ def validate(scenario: Scenario) -> None:
         f"must be ≤ target_set_radius = {scenario.target_set_radius} so Γ ⊂ T can hold",
         tube.r_max,
     )
-    for name in ("k1", "k2"):
-        require(
-            getattr(tube, name) > 0.0, f"scenario.tube.{name}", "must be > 0", getattr(tube, name)
-        )
-    require(tube.k3 >= 0.0, "scenario.tube.k3", "must be ≥ 0", tube.k3)
     require(
         0.0 <= tube.update_rate_hz <= MAX_UPDATE_RATE_HZ,
         "scenario.tube.update_rate_hz",
@@ -377,14 +369,9 @@ def validate(scenario: Scenario) -> None:
             "beliefs (sigma) only; use 0 (continuous)",
             tube.update_rate_hz,
         )
-    bound = minimum_nu(len(scenario.obstacles), tube.r_min)
-    require(
-        tube.nu == 0.0 or tube.nu > bound,
-        "scenario.tube.nu",
-        f"must exceed ln(n_o + 1)/r_min = {bound:.4g} for {len(scenario.obstacles)} "
-        "obstacles, or the soft-min radius can go negative (0 derives it)",
-        tube.nu,
-    )
+    if tube.nu != 0.0:  # the SpatiotemporalTube's and AddStt's rule
+        with rule_path("scenario.tube", "0 derives it"):
+            check_nu_for_count(tube.nu, tube.r_min, len(scenario.obstacles))
     if scenario.perception is not None:
         validate_perception(scenario.perception, scenario)
     if scenario.guide is not None:
@@ -398,32 +385,13 @@ def validate(scenario: Scenario) -> None:
 
 
 def _validate_initial_condition(scenario: Scenario) -> None:
-    """q_j(s, 0) > ε_j for every obstacle (J(0) > 0 in the proof of Theorem 3.2 (ii)), and
-    y(0) ∈ S."""
+    """q_j(s, 0) > ε_j for every obstacle (J(0) > 0 in the proof of Theorem 3.2 (ii); the
+    rule AddStt checks, with Σ_j exactly for the obstacles that give one), and y(0) ∈ S."""
     if scenario.obstacles:
-        belief = scenario.belief_at(0.0)
-        q = np.array(
-            avoid_probability(
-                np.asarray(scenario.start),
-                belief.mean,
-                belief.sigma,
-                belief.radius + scenario.tube.r_min,
-            ),
-            dtype=float,
-        )
-        for j, obstacle in enumerate(scenario.obstacles):
-            if has_full_covariance(obstacle):  # exact with Σ_j (belief.sigma is √λ_max)
-                q[j] = anisotropic.avoid_probability(
-                    np.asarray(scenario.start, dtype=float),
-                    belief.mean[j],
-                    belief.covariance[j],
-                    belief.radius[j] + scenario.tube.r_min,
-                )
-        for j in np.flatnonzero(q <= belief.epsilon):
-            raise AssumptionError(
-                f"scenario.start: the initial avoidance condition fails for obstacle {j}: "
-                f"q_{j}(s, 0) = {q[j]:.6g} must exceed epsilon = {belief.epsilon[j]} "
-                f"(move the start or the obstacle) (got {scenario.start!r})"
+        exact = [has_full_covariance(obstacle) for obstacle in scenario.obstacles]
+        with rule_path("scenario"):
+            check_initial_avoidance(
+                scenario.start, scenario.belief_at(0.0), scenario.tube.r_min, exact
             )
     offset = float(np.linalg.norm(scenario.initial_output() - np.asarray(scenario.start)))
     require(

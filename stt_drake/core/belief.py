@@ -22,6 +22,7 @@ from typing import Protocol
 import numpy as np
 
 from stt_drake.core.motion import CovarianceSchedule, Motion, MotionTable, SigmaSchedule
+from stt_drake.core.rules import check_obstacles, check_task_slots, checked_by
 
 
 def record_size(dimension: int) -> int:
@@ -101,14 +102,21 @@ class ObstacleTask:
     tube, not of the belief (a tracker does not know them).
 
     Attributes:
-        radius: (m,) obstacle radius r_o, metres.
+        radius: (m,) obstacle radius r_o, metres (> 0).
         epsilon: (m,) required avoidance probability ε_j (Definition 2.3), in (0, 1].
-        p_d: (m,) separation probability of Assumption 3, in (ε_j, 1].
+        p_d: (m,) separation probability of Assumption 3, in (ε_j, 1) (1 can never hold
+            for a Gaussian centre).
+
+    Checked per slot when made (:func:`stt_drake.core.rules.check_task_slots`).
     """
 
     radius: np.ndarray
     epsilon: np.ndarray
     p_d: np.ndarray
+
+    def __post_init__(self) -> None:
+        with checked_by("ObstacleTask"):
+            check_task_slots(self.radius, self.epsilon, self.p_d)
 
     @property
     def count(self) -> int:
@@ -120,7 +128,10 @@ class ObstacleTask:
 
     @classmethod
     def of(cls, obstacles: Sequence[ObstacleModel]) -> ObstacleTask:
-        """The task numbers of scenario obstacles, one slot each, in order."""
+        """The task numbers of scenario obstacles, one slot each, in order (checked per
+        obstacle, ``obstacles[j].epsilon`` naming a bad one)."""
+        with checked_by("ObstacleTask.of"):
+            check_obstacles(obstacles)
         return cls(
             radius=np.array([o.radius for o in obstacles], dtype=float),
             epsilon=np.array([o.epsilon for o in obstacles], dtype=float),

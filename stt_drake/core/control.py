@@ -20,6 +20,7 @@ from functools import cached_property
 import numpy as np
 
 from stt_drake.core import backend
+from stt_drake.core.rules import check_box_funnel, check_kappa, checked_by
 
 #: Largest normalised error the law uses; errors beyond it are saturated here.
 ERROR_SATURATION = 1.0 - 1e-9
@@ -38,11 +39,17 @@ class BoxFunnel:
         start: (n,) or scalar p > 0, the half-width at t = 0; must contain |x_k(0) − r_k(0)|.
         end: (n,) or scalar q ∈ (0, p), the final half-width.
         rate: (n,) or scalar μ ≥ 0, the decay rate (1/s).
+
+    All finite; checked when made (:func:`stt_drake.core.rules.check_box_funnel`).
     """
 
     start: np.ndarray | float
     end: np.ndarray | float
     rate: np.ndarray | float
+
+    def __post_init__(self) -> None:
+        with checked_by("BoxFunnel"):
+            check_box_funnel(self.start, self.end, self.rate)
 
     def width(self, t: float) -> np.ndarray:
         start = np.asarray(self.start, dtype=float)
@@ -88,16 +95,16 @@ class FunnelController:
     """The controller of Theorem 4.1 for N = len(kappa) stages.
 
     Attributes:
-        kappa: κ_1..κ_N (> 0).
-        funnels: the N − 1 box funnels of stages 2..N.
+        kappa: κ_1..κ_N (> 0, finite; :func:`stt_drake.core.rules.check_kappa`).
+        funnels: the N − 1 box funnels of stages 2..N (each checked when made).
     """
 
     kappa: Sequence[float]
     funnels: Sequence[BoxFunnel] = ()
 
     def __post_init__(self) -> None:
-        if len(self.kappa) < 1:
-            raise ValueError("kappa: need at least one stage gain")
+        with checked_by("FunnelController"):
+            check_kappa(self.kappa)
         if len(self.funnels) != len(self.kappa) - 1:
             raise ValueError(
                 f"funnels: {len(self.kappa)} stages need {len(self.kappa) - 1} box funnels, "

@@ -49,7 +49,7 @@ update it describes.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from functools import cached_property
 
 import numpy as np
@@ -67,14 +67,7 @@ from stt_drake.core.probability import (
     segment_avoid_lower_bound,
     segment_quantile_lower_bound,
 )
-
-
-def minimum_nu(obstacle_count: int, r_min: float) -> float:
-    """Smallest ν for which the soft-min radius is provably positive (Theorem 3.2 (iii)).
-
-    Every d̂_j > r_min while q_j > ε_j, so r ≥ r_min − ln(n_o + 1)/ν.
-    """
-    return float(np.log(obstacle_count + 1) / r_min)
+from stt_drake.core.rules import check_tube_law, checked_by, minimum_nu
 
 
 def default_nu(obstacle_count: int, r_min: float) -> float:
@@ -198,6 +191,9 @@ class TubeLaw:
             means unbounded: no boundary layer (the paper's law above every ε level set),
             and a recovery has no finite speed, so its ċ is not finite (the Drake system
             stops the run and says so).
+
+    Checked when made (:func:`stt_drake.core.rules.check_tube_law`, a scenario file's rules);
+    ν against the obstacle count where that is known (SpatiotemporalTube, AddStt).
     """
 
     target: np.ndarray
@@ -209,6 +205,10 @@ class TubeLaw:
     nu: float
     linear_zone: float = 0.0
     max_center_speed: float = math.inf
+
+    def __post_init__(self) -> None:
+        with checked_by("TubeLaw"):
+            check_tube_law(*(getattr(self, f.name) for f in fields(TubeLaw)))  # in order
 
     def radius(self, quantile_distance: np.ndarray) -> float:
         """Soft-min radius r = −(1/ν) ln(e^{−ν r_max} + Σ e^{−ν d̂_j}) (Eq. (14)).

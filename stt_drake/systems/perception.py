@@ -8,6 +8,10 @@ Thin Drake systems around :mod:`stt_drake.core.perception` (true world, sensor d
     ObstacleSensor.detections            → ObstacleTracker.detections
     ObstacleTracker.obstacle_belief      → (tube, monitor, ...)
 
+with the tracker updating at the sensor's delivery times (its period, offset = the
+latency). Latency L delivers the sample taken at t (stamped t) at t + L: the belief at τ
+holds every detection stamped ≤ τ − L and none later, L = 0 included.
+
 Data association is known (slot j is obstacle j) and the slot count is fixed at build.
 """
 
@@ -23,6 +27,9 @@ from stt_drake.core.belief import GaussianBelief, belief_size
 from stt_drake.core.motion import Motion, MotionTable
 from stt_drake.core.perception import Detections, SensorModel, TruthPath, detection_size
 from stt_drake.core.tracking import KalmanTracker, TrackTable, blend_beliefs
+
+#: Relative slack when counting sensor periods (a latency of 3 periods is 3, not 2.999...).
+_PERIOD_SLACK = 1e-9
 
 
 class TrueObstacles(LeafSystem):
@@ -56,69 +63,128 @@ class TrueObstacles(LeafSystem):
 
 
 class ObstacleSensor(LeafSystem):
-    """Samples the obstacles every ``model.period`` seconds (offset 0) with the pre-drawn
-    noise and dropouts of `model` (by sample index), and delivers each sample `latency`
-    seconds after it was taken.
+    """Samples the obstacles every ``model.period`` seconds (sample k at k·period) with the
+    pre-drawn noise and dropouts of `model` (by sample index), and delivers each sample
+    `latency` seconds after it was taken.
 
     Inputs: `robot_position` (n, m; for the range check), `true_obstacle_position` (m·n).
-    Output `detections` (held in discrete state): per slot ``[position (n), detected
-    (1.0/0.0), stamp (s)]`` of the last sample delivered
-    (:class:`stt_drake.core.perception.Detections`); before the first delivery nothing is
-    detected and the stamps are −inf.
+    Output `detections`: per slot ``[position (n), detected (1.0/0.0), stamp (s)]``
+    (:class:`stt_drake.core.perception.Detections`) of the latest sample delivered at the
+    context time τ, sample k* = ⌊(τ − latency)/period⌋ (the largest k with
+    k·period + latency ≤ τ); before the first delivery nothing is detected and the stamps
+    are −inf. A system that reads it at τ therefore sees every sample stamped ≤ τ − latency
+    and none later: update it at the delivery times k·period + latency
+    (:class:`ObstacleTracker` with ``offset=latency``).
 
-    With a latency the samples wait in a ring of ⌊latency/period⌋ + 1 records (a second
-    discrete state group) between a measuring event at k·period and a delivering event at
-    k·period + latency.
+    The output is computed from the time, the discrete state and, for a sample taken at τ
+    itself, the inputs. A measuring event at each k·period writes sample k into a ring of
+    ⌈latency/period⌉ + 1 records (discrete state: every sample taken and not yet
+    superseded by a delivered one), where the output finds k*. At a sample instant with
+    latency 0, another system's discrete update at that same instant reads the state
+    before the measuring event (Drake: all updates of one instant read the state before
+    them), which does not hold sample k* yet: the output then measures it from the inputs
+    at τ = k*·period, with the same pre-drawn noise and dropout, the same value the event
+    stores. So at latency 0 a tracker updating at k·period consumes sample k at k·period.
     """
 
     def __init__(self, model: SensorModel, latency: float = 0.0) -> None:
         super().__init__()
-        if latency < 0.0:
-            raise ValueError(f"ObstacleSensor: latency must be >= 0 s, got {latency}")
+        if not 0.0 <= latency < math.inf:
+            raise ValueError(f"ObstacleSensor: latency must be finite and >= 0 s, got {latency}")
         self._model = model
         self._latency = latency
         count, n = model.count, model.dimension
         self._robot_port = self.DeclareVectorInputPort("robot_position", n)
         self._truth_port = self.DeclareVectorInputPort("true_obstacle_position", count * n)
+        self._depth = ring_depth(latency, model.period)
         empty = Detections.none(count, n).to_vector()
-        self._delivered = self.DeclareDiscreteState(empty)
-        if latency == 0.0:
-            self.DeclarePeriodicDiscreteUpdateEvent(model.period, 0.0, self._measure_and_deliver)
-        else:
-            self._depth = math.floor(latency / model.period) + 1
-            self._pending = self.DeclareDiscreteState(np.tile(empty, self._depth))
-            self.DeclarePeriodicDiscreteUpdateEvent(model.period, 0.0, self._measure)
-            self.DeclarePeriodicDiscreteUpdateEvent(model.period, latency, self._deliver)
-        self.DeclareStateOutputPort("detections", self._delivered)
+        self._ring = self.DeclareDiscreteState(np.tile(empty, self._depth))
+        # The sample index each ring record holds (−1: none yet).
+        self._ring_index = self.DeclareDiscreteState(np.full(self._depth, -1.0))
+        self.DeclarePeriodicDiscreteUpdateEvent(model.period, 0.0, self._measure)
+        self.DeclareVectorOutputPort(
+            "detections",
+            detection_size(count, n),
+            self._calc_detections,
+            prerequisites_of_calc={
+                self.time_ticket(),
+                self.xd_ticket(),
+                self.all_input_ports_ticket(),
+            },
+        )
 
-    def _sample(self, context: Context) -> tuple[int, np.ndarray]:
-        """(index, detections vector) of the sample taken at the context's time."""
-        index = self._model.sample_index(context.get_time())
+    @property
+    def latency(self) -> float:
+        """Seconds from a sample to its delivery."""
+        return self._latency
+
+    @property
+    def depth(self) -> int:
+        """Records in the ring: ⌈latency/period⌉ + 1."""
+        return self._depth
+
+    def delivered_index(self, t: float) -> int:
+        """Index k* of the latest sample delivered at time t (s): the largest k with
+        k·period + latency ≤ t (up to a relative rounding slack); negative: none yet."""
+        return math.floor((t - self._latency) / self._model.period + _PERIOD_SLACK)
+
+    def _measured(self, index: int, context: Context) -> np.ndarray:
+        """The detections vector of sample `index` from the inputs in `context`."""
         detections = self._model.measure(
             index, self._truth_port.Eval(context), self._robot_port.Eval(context)
         )
-        return index, detections.to_vector()
-
-    def _measure_and_deliver(self, context: Context, discrete_state: DiscreteValues) -> None:
-        discrete_state.set_value(self._delivered, self._sample(context)[1])
+        return detections.to_vector()
 
     def _measure(self, context: Context, discrete_state: DiscreteValues) -> None:
-        index, record = self._sample(context)
-        ring = discrete_state.get_mutable_vector(self._pending).get_mutable_value()
+        index = self._model.sample_index(context.get_time())
+        record = self._measured(index, context)
+        ring = discrete_state.get_mutable_vector(self._ring).get_mutable_value()
         ring.reshape(self._depth, -1)[index % self._depth] = record
+        held = discrete_state.get_mutable_vector(self._ring_index).get_mutable_value()
+        held[index % self._depth] = index
 
-    def _deliver(self, context: Context, discrete_state: DiscreteValues) -> None:
-        index = self._model.sample_index(context.get_time() - self._latency)
-        ring = context.get_discrete_state(self._pending).value().reshape(self._depth, -1)
-        discrete_state.set_value(self._delivered, ring[index % self._depth])
+    def detections(self, context: Context) -> np.ndarray:
+        """The `detections` vector at the context time (class docstring).
+
+        Raises:
+            RuntimeError: sample k* is neither in the ring nor taken at the context time
+                (the ring is too short: a bug).
+        """
+        t = context.get_time()
+        index = self.delivered_index(t)
+        if index < 0:
+            return Detections.none(self._model.count, self._model.dimension).to_vector()
+        slot = index % self._depth
+        if context.get_discrete_state(self._ring_index).value()[slot] == index:
+            ring = context.get_discrete_state(self._ring).value()
+            return ring.reshape(self._depth, -1)[slot].copy()
+        if abs(t - index * self._model.period) <= _PERIOD_SLACK * self._model.period:
+            # Taken at this instant, before the measuring event has stored it.
+            return self._measured(index, context)
+        raise RuntimeError(
+            f"ObstacleSensor: sample {index} (delivered at t = {t} s) is not in the "
+            f"{self._depth}-record ring"
+        )
+
+    def _calc_detections(self, context: Context, output: BasicVector) -> None:
+        output.SetFromVector(self.detections(context))
+
+
+def ring_depth(latency: float, period: float) -> int:
+    """Records the sensor's ring needs, ⌈latency/period⌉ + 1 (1 at latency 0): at any time
+    τ the samples taken and not superseded by a delivered one are k* = ⌊(τ − latency)/period⌋
+    up to ⌊τ/period⌋, at most ⌈latency/period⌉ + 1 of them."""
+    return math.ceil(latency / period - _PERIOD_SLACK) + 1
 
 
 class ObstacleTracker(LeafSystem):
     """One constant-velocity Kalman filter per obstacle slot
-    (:class:`stt_drake.core.tracking.KalmanTracker`), updated every `period` seconds
-    (offset 0) from the `detections` input: each slot with a detection newer than its last
-    one is corrected (predicted to the detection's stamp first) or born; a slot without one
-    for ``tracker.track_timeout`` seconds is lost.
+    (:class:`stt_drake.core.tracking.KalmanTracker`), updated at ``offset + k·period``
+    (k = 0, 1, ...) from the `detections` input: each slot with a detection newer than its
+    last one is corrected (predicted to the detection's stamp first) or born; a slot
+    without one for ``tracker.track_timeout`` seconds is lost. Give it the sensor's period
+    and, as `offset`, its latency: it then updates at every delivery time, so its belief at
+    τ holds every sample stamped ≤ τ − latency (:class:`ObstacleSensor`).
 
     Known data association (slot j is obstacle j); the slot count `count` is fixed at build.
     Discrete state: :class:`stt_drake.core.tracking.TrackTable`, per slot ``[KF state (2n),
@@ -127,8 +193,8 @@ class ObstacleTracker(LeafSystem):
     Output `obstacle_belief` (:class:`stt_drake.core.belief.GaussianBelief` layout, per slot
     ``[mean (n), covariance (n²), active]``): each active slot's posterior predicted in
     closed form to the context time; an inactive slot has active = 0, mean 0 and covariance
-    I (placeholders). It depends on time and the discrete state only. Use the sensor's
-    period: detections delivered between two tracker updates are not seen.
+    I (placeholders). It depends on time and the discrete state only. Detections delivered
+    between two tracker updates and superseded before the next one are not seen.
 
     A correction moves the posterior at once; with ``blend_time`` τ > 0 the output moves
     from the old track's prediction to the new one over τ seconds
@@ -144,9 +210,16 @@ class ObstacleTracker(LeafSystem):
     """
 
     def __init__(
-        self, tracker: KalmanTracker, count: int, period: float, blend_time: float = 0.0
+        self,
+        tracker: KalmanTracker,
+        count: int,
+        period: float,
+        blend_time: float = 0.0,
+        offset: float = 0.0,
     ) -> None:
         super().__init__()
+        if not 0.0 <= offset < math.inf:
+            raise ValueError(f"ObstacleTracker: offset must be finite and >= 0 s, got {offset}")
         if not 0.0 <= blend_time <= period:
             raise ValueError(
                 f"ObstacleTracker: blend_time must be in [0, period = {period} s] (a blend "
@@ -161,7 +234,7 @@ class ObstacleTracker(LeafSystem):
         # The tracks before the last update, and its time (the blend's start).
         self._previous = self.DeclareDiscreteState(TrackTable.empty(count, n).to_vector())
         self._update_time = self.DeclareDiscreteState([-np.inf])
-        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+        self.DeclarePeriodicDiscreteUpdateEvent(period, offset, self._update)
         self.DeclareStateOutputPort("belief_updates", self._updates)
         self.DeclareStateOutputPort("tracks", self._tracks)
         self.DeclareVectorOutputPort(

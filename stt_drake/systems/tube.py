@@ -19,6 +19,7 @@ from pydrake.systems.framework import (
 from stt_drake.core.belief import GaussianBelief, ObstacleBelief, ObstacleTask, belief_size
 from stt_drake.core.circulation import carry_circulation
 from stt_drake.core.fixed_rate import BeliefRateBounds
+from stt_drake.core.rules import NU_HINT, check_nu_for_count, checked_by
 from stt_drake.core.tube import TubeEvaluation, TubeLaw
 
 
@@ -58,6 +59,9 @@ class SpatiotemporalTube(LeafSystem):
     when an obstacle activates, carried while it stays active; :func:`carry_circulation`),
     updated at every Simulator step (continuous) or update (fixed rate).
 
+    The law's ν must exceed ln(n_o + 1)/r_min for the task's n_o slots (Theorem 3.2 (iii),
+    :func:`stt_drake.core.rules.check_nu_for_count`), else ValueError at construction.
+
     With ``target_input=True`` the target η is read from an extra input port `target` (n)
     instead of ``law.target`` — a task sequencer switches it (e.g. a pick-and-place).
     """
@@ -85,6 +89,8 @@ class SpatiotemporalTube(LeafSystem):
                 "(BeliefRateBounds; .still(count) for beliefs that do not move) to keep its "
                 "guarantee over a whole period"
             )
+        with checked_by("SpatiotemporalTube", "law", NU_HINT):
+            check_nu_for_count(law.nu, law.r_min, task.count)
         self._law = law
         self._dimension = len(initial_center)
         self._task = task
