@@ -11,7 +11,9 @@ delivery and at times between them.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -191,3 +193,22 @@ def test_bad_latency_and_offset_are_refused(bad):
     law = KalmanTracker(2, 0.01, np.eye(2), 0.5, track_timeout=1.0)
     with pytest.raises(ValueError, match="offset must be finite and >= 0"):
         ObstacleTracker(law, 1, PERIOD, offset=bad)
+
+
+def test_the_loader_allows_any_latency_below_the_duration():
+    """The first detection is tracked at t = latency (no period lost on the way): a latency
+    just below the run's duration loads, one equal to it is refused naming the field; the
+    track timeout need only exceed sensor_period + latency."""
+    from stt_drake.build import parse_scenario
+    from stt_drake.config import ScenarioError
+
+    text = (Path(__file__).parent.parent / "diagrams" / "omni_tracked.yaml").read_text()
+    text = re.sub(r"track_timeout: 1\.0[^\n]*", "track_timeout: 13.0", text)
+    base = re.sub(r"  sensor_period: 0\.1[^\n]*", "  sensor_period: 0.1\n  latency: LATENCY", text)
+    assert parse_scenario(base.replace("LATENCY", "11.95")).perception.latency == 11.95
+    with pytest.raises(ScenarioError, match=r"scenario\.perception\.latency: must let"):
+        parse_scenario(base.replace("LATENCY", "12.0"))
+    tight = text.replace("track_timeout: 13.0", "track_timeout: 0.1")
+    with pytest.raises(ScenarioError, match=r"track_timeout: must exceed sensor_period"):
+        parse_scenario(tight)
+    assert parse_scenario(text.replace("track_timeout: 13.0", "track_timeout: 0.11"))

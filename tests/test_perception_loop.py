@@ -115,7 +115,7 @@ def test_jumping_belief_without_blend_is_recovered_from_and_reported(tracked):
         ("sensor_period", 0.0, "must be finite and > 0"),
         ("dropout_probability", 1.0, "must be in [0, 1)"),
         ("blend_time", 0.5, "blend_time: must be in [0, sensor_period"),
-        ("track_timeout", 0.15, "track_timeout: must exceed"),
+        ("track_timeout", 0.1, "track_timeout: must exceed"),  # = sensor_period + latency
         ("noise_covariance", [[0.01, 0.0], [0.0, -0.01]], "positive definite"),
     ],
 )

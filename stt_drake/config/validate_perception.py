@@ -21,10 +21,6 @@ NOISE_PAIRS = (
     ("tracker_noise_sigma", "tracker_noise_covariance"),
 )
 
-#: Relative slack when counting sensor periods (a latency of 3 periods is 3, not 2.999...).
-_PERIOD_SLACK = 1e-9
-
-
 def check_noise_fields(given: list[str], path: str) -> None:
     """Of each pair of :data:`NOISE_PAIRS`, at most one among the fields `given` (the names
     the file wrote with a value): with both, the covariance would win silently.
@@ -43,14 +39,10 @@ def check_noise_fields(given: list[str], path: str) -> None:
 
 def first_tracked_time(perception: Perception) -> float:
     """The earliest time (s) a detection can reach a track: the sample taken at t = 0 is
-    delivered at t = latency, and the tracker's update reads the sensor's output as it was
-    before any update of the same instant, so it sees it at its first update after the
-    delivery, (⌊latency/sensor_period⌋ + 1)·sensor_period."""
-    period = perception.sensor_period
-    periods = perception.latency / period + _PERIOD_SLACK
-    if not math.isfinite(periods):
-        return math.inf
-    return (math.floor(periods) + 1) * period
+    delivered at t = latency, and the tracker updates at the delivery times
+    (:class:`stt_drake.systems.perception.ObstacleTracker` with offset = latency), so it
+    is tracked from t = latency on."""
+    return perception.latency
 
 
 def validate_perception(perception: Perception, scenario: Scenario) -> None:
@@ -80,9 +72,9 @@ def validate_perception(perception: Perception, scenario: Scenario) -> None:
     require(
         perception.sensor_period < duration,
         f"{path}.sensor_period",
-        f"must be below duration = {duration:g} s: the tracker reads a sample at its next "
-        "update, one sensor period after it was taken, so a longer period never gets a "
-        "detection to the tracker and the tube would run blind past every true obstacle",
+        f"must be below duration = {duration:g} s: a longer period takes one sample, at "
+        "t = 0, and the track is lost after track_timeout, so the tube would run blind past "
+        "every true obstacle",
         perception.sensor_period,
     )
     first = first_tracked_time(perception)
@@ -90,8 +82,8 @@ def validate_perception(perception: Perception, scenario: Scenario) -> None:
         first < duration,
         f"{path}.latency",
         f"must let a detection reach the tracker before the end: the first one, taken at "
-        f"t = 0 and delivered at t = latency, is read by the tracker at t = {first:g} s, "
-        f"not before duration = {duration:g} s, so no track would ever be born",
+        f"t = 0, is delivered and tracked at t = latency = {first:g} s, not before "
+        f"duration = {duration:g} s, so no track would ever be born",
         perception.latency,
     )
     density = perception.tracker_process_density
@@ -120,12 +112,12 @@ def validate_perception(perception: Perception, scenario: Scenario) -> None:
         "before the next correction)",
         perception.blend_time,
     )
-    way = perception.sensor_period + perception.latency + perception.sensor_period
+    way = perception.sensor_period + perception.latency
     require(
         perception.track_timeout > way,
         f"{path}.track_timeout",
-        f"must exceed 2·sensor_period + latency = {way:g} s (the way of a detection to the "
-        "tracker), or every new track is lost at once",
+        f"must exceed sensor_period + latency = {way:g} s (the time between two deliveries "
+        "of a track's detections), or every new track is lost at once",
         perception.track_timeout,
     )
     require(
