@@ -9,15 +9,32 @@ printed), 1 a campaign stopped, 2 bad input (found before any simulation).
 from __future__ import annotations
 
 import argparse
+import contextlib
+from collections.abc import Iterator
 from pathlib import Path
 
 from stt_drake.cli.main import BadInputError, CommandError, resolve_scenario
 
 
+@contextlib.contextmanager
+def _exit_codes(args: argparse.Namespace) -> Iterator[None]:
+    """Bad input (CompareError) becomes exit 2; a stopped campaign or an interrupt exit 1,
+    with how to continue."""
+    from stt_drake.campaign import CampaignStoppedError
+    from stt_drake.compare import CompareError
+
+    try:
+        yield
+    except CompareError as error:
+        raise BadInputError(f"stt-drake compare: {error}") from None
+    except (CampaignStoppedError, KeyboardInterrupt) as error:
+        why = "interrupted" if isinstance(error, KeyboardInterrupt) else str(error)
+        raise CommandError(f"stt-drake compare: stopped: {why}{_resume_hint(args)}") from None
+
+
 def _compare(args: argparse.Namespace) -> bool:
     # Imported here: the comparison loads Drake, which other subcommands' start-up avoids.
-    from stt_drake.campaign import CampaignStoppedError
-    from stt_drake.compare import TABLE_FILE, CompareError, compare, comparison_table
+    from stt_drake.compare import TABLE_FILE, compare, comparison_table
 
     scenario = resolve_scenario(args.scenario)  # a path, or a packaged scenario's name
     if args.draws is not None:
@@ -29,7 +46,7 @@ def _compare(args: argparse.Namespace) -> bool:
             "stt-drake compare: --seed: applies only with --draws (the seed of the draws; "
             "the campaigns of a comparison over --runs use seed 0)"
         )
-    try:
+    with _exit_codes(args):
         document = compare(
             scenario,
             args.controllers,
@@ -41,11 +58,6 @@ def _compare(args: argparse.Namespace) -> bool:
             solver=args.solver,
             resume=args.resume,
         )
-    except CompareError as error:
-        raise BadInputError(f"stt-drake compare: {error}") from None
-    except (CampaignStoppedError, KeyboardInterrupt) as error:
-        why = "interrupted" if isinstance(error, KeyboardInterrupt) else str(error)
-        raise CommandError(f"stt-drake compare: stopped: {why}{_resume_hint(args)}") from None
     print(comparison_table(document["rows"]))
     print(f"  wrote {args.out / TABLE_FILE} and comparison.json, comparison.png there")
     return True
@@ -59,8 +71,6 @@ def _resume_hint(args: argparse.Namespace) -> str:
 
 
 def _compare_draws(args: argparse.Namespace, scenario: Path) -> bool:
-    from stt_drake.campaign import CampaignStoppedError
-    from stt_drake.compare import CompareError
     from stt_drake.compare_draws import compare_draws, draws_table
 
     if args.scheduler is not None or args.model_error:
@@ -73,7 +83,7 @@ def _compare_draws(args: argparse.Namespace, scenario: Path) -> bool:
             "stt-drake compare: --runs: not with --draws (--runs: one scenario and a campaign "
             "per controller; --draws: K randomised draws per controller)"
         )
-    try:
+    with _exit_codes(args):
         document = compare_draws(
             scenario,
             args.controllers,
@@ -84,11 +94,6 @@ def _compare_draws(args: argparse.Namespace, scenario: Path) -> bool:
             solver=args.solver,
             resume=args.resume,
         )
-    except CompareError as error:
-        raise BadInputError(f"stt-drake compare: {error}") from None
-    except (CampaignStoppedError, KeyboardInterrupt) as error:
-        why = "interrupted" if isinstance(error, KeyboardInterrupt) else str(error)
-        raise CommandError(f"stt-drake compare: stopped: {why}{_resume_hint(args)}") from None
     print(draws_table(document["rows"]))
     print(f"  wrote {args.out / 'comparison.md'} and comparison.json, draws.jsonl there")
     return True

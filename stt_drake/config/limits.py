@@ -261,18 +261,23 @@ def memory_budget_bytes(scenario: Scenario) -> tuple[float, str]:
     `max_memory_gb` when > 0, else :data:`MEMORY_BUDGET_ENV`, else the default."""
     if scenario.max_memory_gb > 0.0:
         return scenario.max_memory_gb * _GB, "scenario.max_memory_gb"
-    text = os.environ.get(MEMORY_BUDGET_ENV, "").strip()
+    value, source = _positive_from_environment(MEMORY_BUDGET_ENV, DEFAULT_MEMORY_BUDGET_GB, "GB")
+    return value * _GB, source
+
+
+def _positive_from_environment(name: str, default: float, unit: str) -> tuple[float, str]:
+    """(value, where it comes from): the environment variable `name` when set, a number
+    > 0 (else ScenarioError naming it), or `default` ("the default")."""
+    text = os.environ.get(name, "").strip()
     if not text:
-        return DEFAULT_MEMORY_BUDGET_GB * _GB, "the default"
+        return default, "the default"
     try:
         value = float(text)
     except ValueError:
         value = math.nan
     if not (math.isfinite(value) and value > 0.0):
-        raise ScenarioError(
-            f"{MEMORY_BUDGET_ENV}: must be a number of GB > 0 (got {short_repr(text)})"
-        )
-    return value * _GB, MEMORY_BUDGET_ENV
+        raise ScenarioError(f"{name}: must be a number of {unit} > 0 (got {short_repr(text)})")
+    return value, name
 
 
 def drawn_count(scenario: Scenario) -> tuple[int, str]:
@@ -360,18 +365,7 @@ def _advice(path: str) -> str:
 def work_budget_seconds() -> tuple[float, str]:
     """The work budget (s) and where it comes from: :data:`WORK_BUDGET_ENV`, else the
     default."""
-    text = os.environ.get(WORK_BUDGET_ENV, "").strip()
-    if not text:
-        return DEFAULT_WORK_BUDGET_S, "the default"
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0.0):
-        raise ScenarioError(
-            f"{WORK_BUDGET_ENV}: must be a number of seconds > 0 (got {short_repr(text)})"
-        )
-    return value, WORK_BUDGET_ENV
+    return _positive_from_environment(WORK_BUDGET_ENV, DEFAULT_WORK_BUDGET_S, "seconds")
 
 
 def step_rate(scenario: Scenario) -> tuple[float, str]:

@@ -22,7 +22,6 @@ reads before it maps anything onto the schema.
 from __future__ import annotations
 
 import re
-import reprlib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -30,6 +29,7 @@ from typing import Any
 import yaml
 
 from stt_drake.config.schema import ScenarioError
+from stt_drake.core.rules import ECHO_LIMIT, short_repr
 
 #: Largest scenario file read (bytes): the largest shipped file is a few kB.
 MAX_FILE_BYTES = 16 * 1024 * 1024
@@ -46,21 +46,7 @@ MAX_EXPANDED_NODES = 250_000
 MAX_DEPTH = 64
 
 #: Longest echo of a user value in a message (characters).
-REPR_LIMIT = 80
-
-_REPR = reprlib.Repr()
-_REPR.maxlevel = 3
-_REPR.maxlist = _REPR.maxtuple = _REPR.maxset = 8
-_REPR.maxdict = 6
-_REPR.maxstring = _REPR.maxother = 60
-_REPR.maxlong = 40
-
-
-def short_repr(value: Any, limit: int = REPR_LIMIT) -> str:
-    """repr(value) cut to at most `limit` characters, computed without ever forming the
-    whole repr (a list is cut after a few items, nesting after a few levels)."""
-    text = _REPR.repr(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
+REPR_LIMIT = ECHO_LIMIT
 
 
 def read_scenario_file(path: str | Path) -> str:

@@ -63,6 +63,13 @@ _REPR.maxlong = 40
 ECHO_LIMIT = 80
 
 
+def short_repr(value: Any, limit: int = ECHO_LIMIT) -> str:
+    """repr(value) cut to at most `limit` characters, computed without ever forming the
+    whole repr (a list is cut after a few items, nesting after a few levels)."""
+    text = _REPR.repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def echo(value: Any) -> str:
     """A short repr of `value` for a message: numpy arrays and scalars as Python lists and
     numbers, at most :data:`ECHO_LIMIT` characters."""
@@ -70,8 +77,7 @@ def echo(value: Any) -> str:
         value = value.ravel()[:16].tolist() if value.size > 16 else value.tolist()
     elif isinstance(value, np.generic):
         value = value.item()
-    text = _REPR.repr(value)
-    return text if len(text) <= ECHO_LIMIT else text[: ECHO_LIMIT - 3] + "..."
+    return short_repr(value)
 
 
 def join_field(prefix: str, field: str) -> str:
