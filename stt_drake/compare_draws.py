@@ -44,8 +44,13 @@ from typing import Any
 
 import numpy as np
 
-from stt_drake.campaign.folder import CHECKSUM_KEY, record_checksum, record_line
-from stt_drake.campaign.spec import CampaignStoppedError
+from stt_drake.campaign.folder import (
+    CHECKSUM_KEY,
+    check_same_spec,
+    record_checksum,
+    record_line,
+)
+from stt_drake.campaign.spec import CampaignError, CampaignStoppedError
 from stt_drake.compare import (
     CompareError,
     markdown_table,
@@ -223,19 +228,9 @@ def _check_spec(out_dir: Path, spec: dict[str, Any], resume: bool) -> None:
     path = out_dir / DRAWS_SPEC_FILE
     if resume and path.exists():
         try:
-            stored = json.loads(path.read_text())
-        except (OSError, ValueError) as error:
-            raise CompareError(
-                f"--resume: {path} is unreadable ({error}), so this cannot be checked to be "
-                "the same comparison; choose another --out"
-            ) from None
-        for key, value in spec.items():
-            if not isinstance(stored, dict) or stored.get(key) != value:
-                there = stored.get(key) if isinstance(stored, dict) else None
-                raise CompareError(
-                    f"--resume: {key} differs from the comparison in {out_dir} ({there!r} "
-                    f"there, {value!r} now)"
-                )
+            check_same_spec(path, spec, "comparison")
+        except CampaignError as error:
+            raise CompareError(str(error)) from None
     write_json(path, spec)
 
 

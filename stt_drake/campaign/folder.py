@@ -85,23 +85,37 @@ def check_resumable(out_dir: Path, spec: CampaignSpec, text_hash: str, resume: b
                 f"--out: {out_dir} already holds a campaign; pass --resume to continue it "
                 "or choose another --out"
             )
-        try:
-            stored = json.loads(spec_path.read_text())
-        except (ValueError, OSError) as error:
-            raise CampaignError(
-                f"--resume: {spec_path} is unreadable ({error}), so this cannot be checked "
-                "to be the same campaign; choose another --out"
-            ) from None
-        if not isinstance(stored, dict):
-            stored = {}
-        for key, value in wanted.items():
-            # a spec written before a field existed holds that field's default
-            if key not in ("runs", "scenario") and stored.get(key, SPEC_DEFAULTS.get(key)) != value:
-                raise CampaignError(
-                    f"--resume: {key} differs from the campaign in {out_dir} "
-                    f"({stored.get(key)!r} there, {value!r} now)"
-                )
+        check_same_spec(spec_path, wanted, "campaign", ("runs", "scenario"), SPEC_DEFAULTS)
     write_json(spec_path, wanted)
+
+
+def check_same_spec(
+    path: Path,
+    wanted: dict[str, Any],
+    what: str,
+    free: tuple[str, ...] = (),
+    defaults: dict[str, Any] | None = None,
+) -> None:
+    """Refuse to resume unless the spec stored at `path` equals `wanted` (CampaignError
+    naming the first key that differs), except the `free` keys (the run count may grow,
+    the path may be written differently); a key a spec written before it existed lacks
+    reads as its value in `defaults`. `what` names the thing resumed in the messages."""
+    try:
+        stored = json.loads(path.read_text())
+    except (ValueError, OSError) as error:
+        raise CampaignError(
+            f"--resume: {path} is unreadable ({error}), so this cannot be checked "
+            f"to be the same {what}; choose another --out"
+        ) from None
+    if not isinstance(stored, dict):
+        stored = {}
+    defaults = defaults or {}
+    for key, value in wanted.items():
+        if key not in free and stored.get(key, defaults.get(key)) != value:
+            raise CampaignError(
+                f"--resume: {key} differs from the {what} in {path.parent} "
+                f"({stored.get(key)!r} there, {value!r} now)"
+            )
 
 
 def _is_index(value: Any) -> bool:
