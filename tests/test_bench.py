@@ -94,6 +94,8 @@ def test_bench_json_report(tmp_path, capsys):
         assert {f"guide_plan_ms_median_{n}", f"guide_plan_ms_p99_{n}"} <= set(result["targets"])
     guided = result["details"]["guided_loop"]
     assert result["guided_over_unguided"] == guided["ratio"] > 0.0
+    assert set(guided["ratios"]) == {str(seed) for seed in range(8)}
+    assert guided["worst_ratio"] == min(guided["ratios"].values()) <= guided["ratio"]
     for table in ("tube_step_us", "baseline_tube_step_us", "speedup_vs_baseline"):
         assert set(result[table]) == {"2d", "3d"}
         for dimension in ("2d", "3d"):

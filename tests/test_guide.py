@@ -190,8 +190,8 @@ def test_tracked_forecast_is_the_trackers_own_prediction():
 
 
 def test_attraction_point_leads_waits_and_ends_at_the_goal():
-    points = np.array([[0.0, 0.0], [3.0, 0.0]])
-    times = np.array([0.0, 6.0])  # 0.5 m/s
+    points = np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 3.0]])
+    times = np.array([0.0, 6.0, 12.0])  # 0.5 m/s
     route = Route(points, times, True, 0)
     guide = settings(1, lookahead=1.0, speed=0.5)  # η leads by (1/2)/0.5 = 1 s of route
     eta, nearest = attraction_point(route, np.zeros(2), 0.0, guide, 0.0)
@@ -207,8 +207,23 @@ def test_attraction_point_leads_waits_and_ends_at_the_goal():
     eta_back, _ = attraction_point(route, np.array([1.0, 0.5]), 5.5, guide, nearest)
     assert eta_back[0] >= 1.0
     # at the end: the goal itself
-    eta, _ = attraction_point(route, np.array([2.9, 0.0]), 20.0, guide, 2.9)
-    assert np.array_equal(eta, [3.0, 0.0])
+    eta, _ = attraction_point(route, np.array([3.0, 2.9]), 20.0, guide, 5.9)
+    assert np.array_equal(eta, [3.0, 3.0])
+
+
+def test_attraction_point_on_the_last_leg_is_the_goal_unless_ahead_of_the_clock():
+    """On the route's last straight leg to the goal η is the goal (the centre runs at its
+    own speed, as without a guide), except when the centre is ahead of the route's clock:
+    then it waits where the route is, as on every other leg."""
+    route = Route(np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 3.0]]), np.array([0.0, 6, 12]), True, 0)
+    guide = settings(1, lookahead=1.0, speed=0.5)
+    eta, _ = attraction_point(route, np.array([3.0, 1.0]), 9.0, guide, 4.0)  # behind
+    assert np.array_equal(eta, [3.0, 3.0])
+    eta, _ = attraction_point(route, np.array([3.0, 2.0]), 6.0, guide, 5.0)  # ahead
+    assert np.allclose(eta, [3.0, 2.0])
+    unreached = Route(route.points, route.times, False, 0)  # a route that stops short
+    eta, _ = attraction_point(unreached, np.array([3.0, 1.0]), 9.0, guide, 4.0)
+    assert np.allclose(eta, [3.0, 2.0])
 
 
 def test_attraction_point_turns_at_corners_only_near_them():

@@ -329,8 +329,11 @@ def attraction_point(
     corner_radius` of it (the centre moves straight at η: a point beyond a corner would
     pull it across the corner, into what the route went around). The nearest point is
     searched from `progress` (the last one's arc length) minus one look-ahead, so the tube
-    never turns back along its route. At the route's end η is the route's last point (the
-    goal itself when the route reached it)."""
+    never turns back along its route. On a route's last straight leg to the goal, η is the
+    goal itself unless the centre is ahead of the route's clock: the centre then runs at
+    its own speed, as without a guide (a centre that follows a point at a lag is never
+    saturated, and costs the integrator about twice the steps of one that is). At the
+    route's end η is the route's last point (the goal itself when the route reached it)."""
     s = route.arc_length
     points = route.points
     ahead = max(progress - settings.lookahead, 0.0)
@@ -339,6 +342,8 @@ def attraction_point(
     timed = float(np.interp(t + 0.5 * settings.lookahead / settings.speed, route.times, s))
     target = min(max(timed, nearest), nearest + settings.lookahead, float(s[-1]))
     corner = int(np.searchsorted(s, nearest + 1e-9, side="right"))
+    if route.reached and corner >= len(s) - 1 and timed >= nearest:
+        return points[-1].copy(), nearest  # the last leg, not ahead of the clock: go
     turn = corner < len(s) - 1 and np.linalg.norm(points[corner] - center) > settings.corner_radius
     if turn:
         target = min(target, float(s[corner]))
