@@ -7,15 +7,19 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from stt_drake.config import ScenarioText
+
 
 def raising_end_to_end_task(
-    text: str, name: str, steps: int, guide: bool, runs: Sequence[tuple[int, int]]
+    source: ScenarioText,
+    steps: int,
+    guide: bool,
+    comfort_distance: float,
+    runs: Sequence[tuple[int, int]],
 ) -> list[dict[str, Any]]:
     """What :func:`stt_drake.campaign.end_to_end.end_to_end_task` gives when every run's
     simulation raises: an ``error`` record per run, colliding at every logged time."""
-    from stt_drake.config import parse_schema
-
-    count = len(parse_schema(text, name, guide).obstacles)
+    count = len(source.parse(guide).obstacles)
     every = [[[0, steps]] for _ in range(count)]
     return [
         {

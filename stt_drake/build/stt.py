@@ -10,7 +10,7 @@ into `output` (the monitor's y).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder, InputPort, LeafSystem, OutputPort
@@ -22,6 +22,7 @@ from stt_drake.core.belief import (
     obstacle_belief,
 )
 from stt_drake.core.control import FunnelController
+from stt_drake.core.motion import MotionTable
 from stt_drake.core.rules import (
     NU_HINT,
     check_initial_avoidance,
@@ -178,12 +179,15 @@ def _check_obstacles(
     """The rules AddStt can check on scripted obstacles before adding anything (those of a
     scenario file, :mod:`stt_drake.core.rules`): each obstacle's r_o, ε, p_d, ν against
     their count, and q_j(s, 0) > ε_j at the start — with Σ_j exactly where the tube will
-    use it."""
+    use it; an obstacle absent at t = 0 (a recorded track that starts later) gets ε = −1,
+    which every q passes."""
     with checked_by("AddStt"):
         check_obstacles(obstacles)
     with checked_by("AddStt", "law", NU_HINT):
         check_nu_for_count(law.nu, law.r_min, len(obstacles))
     initial = obstacle_belief(obstacles, start.shape[0], 0.0)
+    present = MotionTable([o.motion for o in obstacles], start.shape[0]).active(0.0)
+    initial = replace(initial, epsilon=np.where(present, initial.epsilon, -1.0))
     exact = [full_covariance is not False and has_full_covariance(o) for o in obstacles]
     with checked_by("AddStt"):
         check_initial_avoidance(start, initial, law.r_min, exact)

@@ -28,7 +28,7 @@ from collections.abc import Callable, Iterator
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from stt_drake.campaign.backends import (
     DASK_TIMEOUT_S,
@@ -70,6 +70,9 @@ from stt_drake.campaign.sampling import (
     run_seed,
     sample_true_obstacles,
 )
+
+if TYPE_CHECKING:
+    from stt_drake.config import ScenarioText
 from stt_drake.campaign.spec import CampaignError, CampaignSpec, CampaignStoppedError
 from stt_drake.runlog import unwritable_reason, write_json
 
@@ -94,29 +97,29 @@ class CampaignOutcome:
     records: list[dict[str, Any]]
 
 
-def _load_checked_scenario(spec: CampaignSpec, text: str, name: str) -> Any:
+def _load_checked_scenario(spec: CampaignSpec, source: ScenarioText) -> Any:
     """The scenario as the campaign sees it (kind 1: the file's seed; kind 2: run 0's draw,
     only to reject bad input up front, None when that draw is rejected). The YAML is parsed
     once; a randomisation campaign must have a random field (checked on the parsed file,
     before anything is drawn)."""
     from stt_drake.build import prepare_scenario
-    from stt_drake.config import AssumptionError, ScenarioError, has_random_field, parse_schema
+    from stt_drake.config import AssumptionError, ScenarioError, draws_obstacles
 
     randomising = spec.kind == "randomisation"
     try:
-        schema = parse_schema(text, name, spec.guide)
-        if randomising and not has_random_field(schema.random_obstacles):
+        schema = source.parse(spec.guide)
+        if randomising and not draws_obstacles(schema):
             raise CampaignError(
                 "scenario.random_obstacles: a randomisation campaign needs a random_obstacles "
-                "section with count > 0 or a count_range"
+                "section with count > 0 or a count_range, or a crowd section"
             )
         if spec.kind == "end-to-end" and schema.perception is None:
             raise CampaignError(
                 "scenario.perception: an end-to-end campaign needs a perception section "
                 "(true obstacles, sensor, tracker; see diagrams/omni_tracked.yaml)"
             )
-        if spec.kind == "true-obstacles" and not schema.obstacles and not has_random_field(
-            schema.random_obstacles
+        if spec.kind == "true-obstacles" and not schema.obstacles and not draws_obstacles(
+            schema
         ):
             raise CampaignError(
                 "scenario.obstacles: a true-obstacle campaign draws the true centres of the "
@@ -175,8 +178,11 @@ def run_campaign(
     if reason is not None:
         raise CampaignError(f"--out: {out_dir} {reason}")
     path = Path(spec.scenario)
-    text, name = _scenario_text(path), path.stem
-    scenario = _load_checked_scenario(spec, text, name)
+    from stt_drake.config import ScenarioText
+
+    text = _scenario_text(path)
+    scenario_text = ScenarioText(text, path.stem, str(path.resolve().parent))
+    scenario = _load_checked_scenario(spec, scenario_text)
     text_hash = hashlib.sha256(text.encode()).hexdigest()
     simulating = spec.kind in ("randomisation", "end-to-end")
     preload = ["stt_drake.campaign", *(["stt_drake.run"] if simulating else [])]
@@ -185,7 +191,7 @@ def run_campaign(
         out_dir.mkdir(parents=True, exist_ok=True)
         with folder_lock(out_dir):
             check_resumable(out_dir, spec, text_hash, resume)
-            source = (text, name, scenario)
+            source = (scenario_text, scenario)
             options = (resume, chunk_size, progress, figures)
             return _run_locked(spec, out_dir, backend, source, closed_loop, *options)
     finally:
@@ -196,7 +202,7 @@ def _run_locked(
     spec: CampaignSpec,
     out_dir: Path,
     backend: Backend,
-    source: tuple[str, str, Any],
+    source: tuple[ScenarioText, Any],
     closed_loop: ClosedLoop | None,
     resume: bool,
     chunk_size: int | None,
@@ -205,13 +211,13 @@ def _run_locked(
 ) -> CampaignOutcome:
     """The campaign in its locked folder, the backend open: simulate the closed loop (or
     reuse it), read the runs done, run the rest, summarise."""
-    text, name, scenario = source
+    scenario_text, scenario = source
     start = time.perf_counter()
     closed_loop_summary: dict[str, Any] | None = None
     randomising = spec.kind == "randomisation"
     if spec.kind == "end-to-end":
         steps, count = logged_times(scenario), len(scenario.obstacles)
-        task, task_args = end_to_end_task, (text, name, steps, spec.guide)
+        task, task_args = end_to_end_task, (scenario_text, steps, spec.guide, spec.comfort_distance)
         size, failed, label = chunk_size or 1, end_to_end_failed, "collided"
 
         def shaped(record: Record) -> bool:
@@ -226,7 +232,7 @@ def _run_locked(
         def shaped(record: Record) -> bool:
             return is_true_obstacle_record(record, count, steps)
     else:
-        task, task_args = randomisation_task, (text, name, spec.guide)
+        task, task_args = randomisation_task, (scenario_text, spec.guide, spec.comfort_distance)
         size, failed, label = chunk_size or 1, draw_failed, "failures"
         shaped = is_randomisation_record
         (out_dir / FAILURES_DIR).mkdir(exist_ok=True)
@@ -275,7 +281,7 @@ def _run_locked(
                         # in runs.jsonl always has its YAML, even after a kill
                         (out_dir / failure_name(record["run"])).write_text(
                             failing_draw_yaml(
-                                text, name, record["seed"], spec.seed, record["run"], spec.guide
+                                scenario_text, record["seed"], spec.seed, record["run"], spec.guide
                             )
                         )
                 stream.write(record_line(record) + "\n")
@@ -295,7 +301,7 @@ def _run_locked(
     finished = [records[i] for i in range(spec.runs)]
     summary = write_summary(
         spec,
-        scenario.name if scenario is not None else name,
+        scenario.name if scenario is not None else scenario_text.name,
         finished,
         out_dir,
         start,

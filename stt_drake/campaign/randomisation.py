@@ -11,22 +11,28 @@ import re
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
+from stt_drake.campaign.crowd_metrics import crowd_record, is_crowd_record
+from stt_drake.core.crowd_metrics import DEFAULT_COMFORT_DISTANCE
 from stt_drake.core.invariants import INVARIANT_NAMES
 
 if TYPE_CHECKING:
-    from stt_drake.config import Scenario
+    from stt_drake.config import Scenario, ScenarioText
 
 FAILURES_DIR = "failures"
 
 
-def randomisation_run(schema: Scenario, index: int, seed: int) -> dict[str, Any]:
+def randomisation_run(
+    schema: Scenario, index: int, seed: int, comfort_distance: float = DEFAULT_COMFORT_DISTANCE
+) -> dict[str, Any]:
     """Complete the parsed scenario `schema` with `seed` (redrawing its random field),
     simulate, check.
 
     Record: ``{"run", "seed", "status"}`` with status ``rejected`` (the draw breaks the
     paper's assumptions; `reason`), ``error`` (the simulation raised; `reason`) or
     ``simulated`` (then `obstacles`, `reached`, `t_reach`, `holds`, `success`,
-    `stop_reason`, `stalls` and `invariants` as in metrics.json).
+    `stop_reason`, `stalls` and `invariants` as in metrics.json, and the crowd metrics
+    against the draw's true obstacles, :data:`stt_drake.campaign.crowd_metrics.CROWD_KEYS`, with
+    comfort distance `comfort_distance` m).
     """
     from stt_drake.build import prepare_scenario
     from stt_drake.config import AssumptionError
@@ -53,19 +59,18 @@ def randomisation_run(schema: Scenario, index: int, seed: int) -> dict[str, Any]
         "stop_reason": metrics["stop_reason"],
         "stalls": metrics["stalls"],
         "invariants": metrics["invariants"],
+        **crowd_record(result.log, comfort_distance),
     }
 
 
 def randomisation_task(
-    text: str, name: str, guide: bool, runs: Sequence[tuple[int, int]]
+    source: ScenarioText, guide: bool, comfort_distance: float, runs: Sequence[tuple[int, int]]
 ) -> list[dict[str, Any]]:
     """One executor task: the records of a batch of (run index, seed), the YAML parsed once
     for the batch (the schema holds Drake objects that do not pickle, so the text travels);
     `guide` False drops the scenario's guide section."""
-    from stt_drake.config import parse_schema
-
-    schema = parse_schema(text, name, guide)
-    return [randomisation_run(schema, index, seed) for index, seed in runs]
+    schema = source.parse(guide)
+    return [randomisation_run(schema, index, seed, comfort_distance) for index, seed in runs]
 
 
 def _is_number(value: Any) -> bool:
@@ -111,7 +116,8 @@ def stalled_to_end(record: dict[str, Any]) -> bool:
 def is_randomisation_record(record: dict[str, Any]) -> bool:
     """Whether a record read back from ``runs.jsonl`` has the shape
     :func:`randomisation_run` gives (its status and that status's keys and types;
-    `stop_reason` and `stalls` may be missing, as in records of older versions)."""
+    `stop_reason`, `stalls` and the crowd keys may be missing, as in records of older
+    versions)."""
     status = record.get("status")
     if status in ("rejected", "error"):
         return isinstance(record.get("reason"), str)
@@ -134,6 +140,7 @@ def is_randomisation_record(record: dict[str, Any]) -> bool:
         and all(isinstance(record.get(key), bool) for key in ("reached", "holds", "success"))
         and (t_reach is None or _is_number(t_reach))
         and has_run_story(record)
+        and is_crowd_record(record, record["obstacles"])
     )
 
 
@@ -146,15 +153,19 @@ def draw_failed(record: dict[str, Any]) -> bool:
 
 
 def failing_draw_yaml(
-    text: str, name: str, seed: int, campaign_seed: int, index: int, guide: bool = True
+    source: ScenarioText, seed: int, campaign_seed: int, index: int, guide: bool = True
 ) -> str:
     """The scenario text that reproduces one draw: its own `seed` (and `name`) set; the
-    replay command says ``--no-guide`` when the campaign dropped the guide."""
+    replay command says ``--no-guide`` when the campaign dropped the guide. Recorded track
+    files stay named as in the scenario: the header says in which folder they are."""
+    text, name = source.text, source.name
     replay = "stt-drake run <this file>" + ("" if guide else " --no-guide")
     header = (
         f"# Failing draw: run {index} of a randomisation campaign (campaign seed "
         f"{campaign_seed}). Replay: {replay}\n"
     )
+    if "!Recorded" in text:
+        header += f"# Its recorded track files are named relative to {source.base}\n"
     body = text if text.endswith("\n") else text + "\n"
     seed_line = re.compile(r"^seed:[^\n]*$", re.MULTILINE)
     if seed_line.search(body):

@@ -3,12 +3,17 @@ without building anything, and random obstacle fields. The complete loader, whic
 checks that need the built laws, is :func:`stt_drake.build.load_scenario`."""
 
 from stt_drake.config.load import (
+    ScenarioText,
     complete_scenario,
     parse_schema,
     read_scenario,
     read_scenario_text,
 )
-from stt_drake.config.random_field import expand_random_obstacles, has_random_field
+from stt_drake.config.random_field import (
+    draws_obstacles,
+    expand_random_obstacles,
+    has_random_field,
+)
 from stt_drake.config.schema import (
     PLANT_DIMENSION,
     PLANT_FUNNEL_DIMENSION,
@@ -48,8 +53,10 @@ __all__ = [
     "RandomObstacles",
     "Scenario",
     "ScenarioError",
+    "ScenarioText",
     "TubeConfig",
     "complete_scenario",
+    "draws_obstacles",
     "expand_random_obstacles",
     "has_random_field",
     "parse_schema",

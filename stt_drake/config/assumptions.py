@@ -22,7 +22,7 @@ import numpy as np
 
 from stt_drake.config.schema import AssumptionError, Scenario
 from stt_drake.core import anisotropic
-from stt_drake.core.belief import has_full_covariance, obstacle_covariance, obstacle_sigma
+from stt_drake.core.belief import has_full_covariance, obstacle_covariance
 from stt_drake.core.motion import MotionTable
 from stt_drake.core.probability import avoid_probability
 
@@ -46,8 +46,11 @@ class TargetSeparation:
 def target_separation(
     scenario: Scenario, checkpoints: int = SEPARATION_CHECKPOINTS
 ) -> TargetSeparation:
-    """q_j(η, t) at `checkpoints` times evenly over [0, duration], η the final target (the
-    means of all obstacles stacked once, :class:`stt_drake.core.motion.MotionTable`).
+    """q_j(η, t) at `checkpoints` times evenly over [0, duration], η the final target: the
+    means of all obstacles at all times in one call
+    (:meth:`stt_drake.core.motion.MotionTable.positions_at`), the isotropic probabilities
+    in one call. An obstacle that does not exist at a time (a recorded track outside its
+    span, :meth:`stt_drake.core.motion.MotionTable.active_at`) reads q = 1 there.
 
     An obstacle with a full covariance Σ_j(t) gets the exact anisotropic probability
     (:func:`stt_drake.core.anisotropic.avoid_probability`): P(‖η − O_j‖ ≥ R) with
@@ -59,19 +62,16 @@ def target_separation(
     target = np.asarray(scenario.target, dtype=float)
     table = MotionTable([o.motion for o in obstacles], n)
     radius = np.array([o.radius for o in obstacles], dtype=float) + scenario.tube.r_min
-    sigma = np.array([o.sigma for o in obstacles], dtype=float)
+    sigma = np.tile(np.array([o.sigma for o in obstacles], dtype=float), (times.size, 1))
     full = [j for j, o in enumerate(obstacles) if has_full_covariance(o)]
-    scheduled = [
-        j for j, o in enumerate(obstacles) if o.sigma_schedule is not None and j not in full
-    ]
-    q = np.empty((times.size, len(obstacles)))
-    means = np.empty((times.size, len(obstacles), n))
-    for k, time in enumerate(times):
-        for j in scheduled:
-            sigma[j] = obstacle_sigma(obstacles[j], float(time))
-        if obstacles:
-            means[k] = table.positions(float(time))
-            q[k] = avoid_probability(target, means[k], sigma, radius)
+    for j, obstacle in enumerate(obstacles):
+        schedule = obstacle.sigma_schedule
+        if schedule is not None and j not in full:  # obstacle_sigma's σ(t), for all times
+            sigma[:, j] = np.interp(times, schedule.times, schedule.values)
+    means = table.positions_at(times)
+    if full:  # the isotropic law does not apply to these: any σ > 0 for the one call
+        sigma[:, full] = 1.0
+    q = avoid_probability(target, means, sigma, radius) if obstacles else sigma
     for j in full:
         offsets = target - means[:, j]
         if obstacles[j].covariance_schedule is None:
@@ -83,6 +83,7 @@ def target_separation(
                 q[k, j] = anisotropic.avoid_probability(
                     offsets[k], np.zeros(n), covariance, radius[j]
                 )
+    q = np.where(table.active_at(times), q, 1.0)
     p_d = np.array([o.p_d for o in obstacles], dtype=float)
     return TargetSeparation(times, q, p_d)
 

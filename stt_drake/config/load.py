@@ -6,6 +6,7 @@ limits of :mod:`stt_drake.config.limits` checked, the random field drawn, then
 
 import copy
 import typing
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +18,7 @@ from stt_drake.config.random_field import expand_random_obstacles
 from stt_drake.config.schedules import check_schedule_nodes
 from stt_drake.config.schema import Scenario, ScenarioError
 from stt_drake.config.source import compose_checked, read_scenario_file, short_repr
+from stt_drake.config.tracks import attach_tracks
 from stt_drake.config.validate import (
     UNCERTAINTY_FIELDS,
     check_one_uncertainty,
@@ -158,17 +160,23 @@ def read_scenario(path: str | Path, seed: int | None = None) -> Scenario:
     the checks that need the built laws.
 
     `seed`, when given, replaces the file's `seed` before anything random is drawn, so a
-    run is reproduced from (file, seed) alone.
+    run is reproduced from (file, seed) alone. A recorded track's file (``!Recorded``) is
+    relative to the scenario file's folder (:mod:`stt_drake.config.tracks`).
     """
     path = Path(path)
-    return read_scenario_text(read_scenario_file(path), default_name=path.stem, seed=seed)
+    text = read_scenario_file(path)
+    return read_scenario_text(text, default_name=path.stem, seed=seed, base=path.parent)
 
 
 def read_scenario_text(
-    text: str, default_name: str = "scenario", seed: int | None = None
+    text: str,
+    default_name: str = "scenario",
+    seed: int | None = None,
+    base: str | Path | None = None,
 ) -> Scenario:
-    """Parse scenario YAML text (see :func:`read_scenario`)."""
-    return complete_scenario(parse_schema(text, default_name), seed)
+    """Parse scenario YAML text (see :func:`read_scenario`); recorded track files are
+    relative to the folder `base` (None: the current folder)."""
+    return complete_scenario(parse_schema(text, default_name, base=base), seed)
 
 
 #: Fields an obstacle must give, and what each one is (no invented uncertainty or risk).
@@ -178,6 +186,13 @@ OBSTACLE_REQUIRED = {
     "epsilon": "the probability ε ∈ (0, 1] with which the tube must avoid the obstacle",
     "p_d": "the probability p_d ∈ (ε, 1] of Assumption 3, that the obstacle eventually "
     "leaves the tube alone",
+}
+
+#: Fields a recorded motion must give (no default track).
+RECORDED_REQUIRED = {
+    "file": "the track file, .csv (header t,id,x,y[,z]) or .npz (arrays t, id, position), "
+    "relative to the scenario file's folder",
+    "id": "the track's id in that file (an integer)",
 }
 
 #: Fields a random obstacle field that draws must give.
@@ -198,7 +213,8 @@ def _check_required(raw: dict) -> None:
     """The safety fields Drake's loader would fill with a default, found missing in the
     raw mapping: every obstacle's sigma (unless it gives another form of the uncertainty,
     of which it may give one only:
-    :func:`stt_drake.config.validate.check_one_uncertainty`), epsilon and p_d; a
+    :func:`stt_drake.config.validate.check_one_uncertainty`), epsilon and p_d, a recorded
+    motion's file and id; a
     drawing random field's sigma_range, epsilon_range and p_d. And, since the defaults hide
     it after loading, that `perception:` writes at most one of each pair of noise models
     (:func:`stt_drake.config.validate_perception.check_noise_fields`)."""
@@ -212,6 +228,9 @@ def _check_required(raw: dict) -> None:
             if any(name != "sigma" for name in given):
                 del needed["sigma"]
             _require_fields(item, needed, path)
+            motion = item.get("motion")
+            if isinstance(motion, dict) and motion.get("__tag__") == "Recorded":
+                _require_fields(motion, RECORDED_REQUIRED, f"{path}.motion")
     spec = raw.get("random_obstacles")
     if isinstance(spec, dict) and (spec.get("count") not in (None, 0) or spec.get("count_range")):
         _require_fields(spec, RANDOM_REQUIRED, "scenario.random_obstacles")
@@ -221,14 +240,36 @@ def _check_required(raw: dict) -> None:
         check_noise_fields(given, "scenario.perception")
 
 
-def parse_schema(text: str, default_name: str = "scenario", guide: bool = True) -> Scenario:
+@dataclass(frozen=True)
+class ScenarioText:
+    """A scenario as it travels to a campaign's worker processes (the parsed schema holds
+    Drake objects that do not pickle): the file's `text`, its `name` (the file's stem) and
+    `base`, the folder its recorded track files are named relative to."""
+
+    text: str
+    name: str
+    base: str
+
+    def parse(self, guide: bool = True) -> Scenario:
+        """:func:`parse_schema` of this text, its tracks read relative to `base`."""
+        return parse_schema(self.text, self.name, guide, self.base)
+
+
+def parse_schema(
+    text: str,
+    default_name: str = "scenario",
+    guide: bool = True,
+    base: str | Path | None = None,
+) -> Scenario:
     """YAML text → the schema dataclasses, with duplicate keys, unknown keys, missing
-    required fields and type errors reported by their field path; nothing drawn, nothing
-    else checked (:func:`complete_scenario` does that, once per seed: a campaign parses its
-    file once and completes a copy per run). A scenario without a `name` is named
-    `default_name`, made a valid name (:func:`stt_drake.config.validate.name_from_stem`).
-    ``guide=False`` drops the file's `guide:` section: the paper's reactive tube on the
-    same scenario (``--no-guide``)."""
+    required fields and type errors reported by their field path, and the recorded tracks
+    read from their files (relative to the folder `base`, None: the current folder; each
+    file once, its rules checked: :func:`stt_drake.config.tracks.attach_tracks`); nothing
+    drawn, nothing else checked (:func:`complete_scenario` does that, once per seed: a
+    campaign parses its file once and completes a copy per run, sharing the tracks). A
+    scenario without a `name` is named `default_name`, made a valid name
+    (:func:`stt_drake.config.validate.name_from_stem`). ``guide=False`` drops the file's
+    `guide:` section: the paper's reactive tube on the same scenario (``--no-guide``)."""
     raw = compose_checked(text, _TaggedLoader, _FastTaggedLoader, check_schedule_nodes)
     if not isinstance(raw, dict):
         raise ScenarioError("scenario: the file must be a mapping of fields")
@@ -249,6 +290,7 @@ def parse_schema(text: str, default_name: str = "scenario", guide: bool = True) 
         scenario.name = name_from_stem(default_name)
     if not guide:
         scenario.guide = None
+    attach_tracks(scenario, None if base is None else Path(base))
     return scenario
 
 

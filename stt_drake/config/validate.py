@@ -18,6 +18,7 @@ TubeLaw, ObstacleTask, BoxFunnel, FunnelController, SpatiotemporalTube and AddSt
 too, called through :func:`stt_drake.config.limits.rule_path` with the file's field path.
 """
 
+import dataclasses
 import math
 import re
 
@@ -41,10 +42,18 @@ from stt_drake.config.schema import (
     Scenario,
     ScenarioError,
 )
+from stt_drake.config.validate_crowd import validate_crowd
 from stt_drake.config.validate_guide import validate_guide
 from stt_drake.config.validate_perception import validate_perception
 from stt_drake.core.belief import axes_covariance, has_full_covariance
-from stt_drake.core.motion import ConstantVelocity, Motion, Oscillation, Waypoints
+from stt_drake.core.motion import (
+    ConstantVelocity,
+    Motion,
+    MotionTable,
+    Oscillation,
+    Recorded,
+    Waypoints,
+)
 from stt_drake.core.rules import (
     check_box_funnel,
     check_center_speed,
@@ -148,6 +157,58 @@ def _validate_motion(motion: Motion, n: int, path: str) -> None:
         _require_step_times(motion.times, f"{path}.times")
         for i, position in enumerate(motion.positions):
             require_vector(position, n, f"{path}.positions[{i}]")
+
+
+def _validate_recorded_span(motion: Recorded, scenario: Scenario, path: str) -> None:
+    """A recorded track (read by :mod:`stt_drake.config.tracks`) does not end before the
+    run starts (a track that starts after the run ends is a pedestrian this run never
+    meets: allowed, so a shorter run of a recording loads; that *no* track overlaps the run
+    is refused by :func:`_validate_recorded_overlap`); with the fixed-rate tube it covers
+    the whole run: that tube's period guarantee needs every slot active
+    (:mod:`stt_drake.core.fixed_rate`)."""
+    require(
+        motion.loaded,
+        f"{path}.file",
+        "the track file was not read (load the scenario with stt_drake.config)",
+        motion.file,
+    )
+    first, last = motion.track.span
+    duration = scenario.duration
+    require(
+        last >= 0.0,
+        f"{path}.id",
+        f"the track spans [{first:g}, {last:g}] s and ends before the run starts: its times "
+        "must be seconds from the run's start",
+        motion.id,
+    )
+    require(
+        scenario.tube.update_rate_hz == 0.0 or (first <= 0.0 and last >= duration),
+        f"{path}.id",
+        f"the track spans [{first:g}, {last:g}] s and the obstacle exists over that span only; "
+        f"the fixed-rate tube (tube.update_rate_hz > 0) needs every obstacle for the whole run "
+        f"[0, {duration:g}] s: give a track that covers it, or use update_rate_hz: 0 "
+        "(continuous time)",
+        motion.id,
+    )
+
+
+def _validate_recorded_overlap(scenario: Scenario) -> None:
+    """Some recorded track overlaps the run [0, duration]: tracks that all start after the
+    run ends are stamped in another clock (e.g. Unix time), not seconds from the start."""
+    spans = [
+        (i, o.motion.track.span)
+        for i, o in enumerate(scenario.obstacles)
+        if isinstance(o.motion, Recorded)
+    ]
+    if spans:
+        first = min(span[0] for _, span in spans)
+        require(
+            first <= scenario.duration,
+            f"scenario.obstacles[{spans[0][0]}].motion.file",
+            f"every recorded track starts after the run [0, {scenario.duration:g}] s ends "
+            f"(the first at {first:g} s): times must be seconds from the run's start",
+            spans[0][1][0],
+        )
 
 
 def _validate_obstacle(obstacle: Obstacle, n: int, path: str) -> None:
@@ -359,6 +420,9 @@ def validate(scenario: Scenario) -> None:
     )
     for i, obstacle in enumerate(scenario.obstacles):
         _validate_obstacle(obstacle, n, f"scenario.obstacles[{i}]")
+        if isinstance(obstacle.motion, Recorded):
+            _validate_recorded_span(obstacle.motion, scenario, f"scenario.obstacles[{i}].motion")
+    _validate_recorded_overlap(scenario)
     full = [i for i, obstacle in enumerate(scenario.obstacles) if has_full_covariance(obstacle)]
     if full:
         require(
@@ -372,6 +436,7 @@ def validate(scenario: Scenario) -> None:
     if tube.nu != 0.0:  # the SpatiotemporalTube's and AddStt's rule
         with rule_path("scenario.tube", "0 derives it"):
             check_nu_for_count(tube.nu, tube.r_min, len(scenario.obstacles))
+    validate_crowd(scenario)  # before perception: a crowd's pedestrians are its obstacles
     if scenario.perception is not None:
         validate_perception(scenario.perception, scenario)
     if scenario.guide is not None:
@@ -386,13 +451,19 @@ def validate(scenario: Scenario) -> None:
 
 def _validate_initial_condition(scenario: Scenario) -> None:
     """q_j(s, 0) > ε_j for every obstacle (J(0) > 0 in the proof of Theorem 3.2 (ii); the
-    rule AddStt checks, with Σ_j exactly for the obstacles that give one), and y(0) ∈ S."""
+    rule AddStt checks, with Σ_j exactly for the obstacles that give one), and y(0) ∈ S.
+    An obstacle that does not exist at t = 0 (a recorded track that starts later) is not
+    checked: it is given ε = −1, which every probability exceeds (the others keep their
+    index in the message)."""
     if scenario.obstacles:
         exact = [has_full_covariance(obstacle) for obstacle in scenario.obstacles]
+        belief = scenario.belief_at(0.0)
+        motions = MotionTable([o.motion for o in scenario.obstacles], scenario.dimension)
+        present = motions.active(0.0)
+        if not present.all():
+            belief = dataclasses.replace(belief, epsilon=np.where(present, belief.epsilon, -1.0))
         with rule_path("scenario"):
-            check_initial_avoidance(
-                scenario.start, scenario.belief_at(0.0), scenario.tube.r_min, exact
-            )
+            check_initial_avoidance(scenario.start, belief, scenario.tube.r_min, exact)
     offset = float(np.linalg.norm(scenario.initial_output() - np.asarray(scenario.start)))
     require(
         offset < scenario.tube.r_min,

@@ -1385,11 +1385,21 @@ def belief_table(
     moving: np.ndarray,
     start: np.ndarray,
     velocity: np.ndarray,
+    sampled: np.ndarray,
+    sample_times: np.ndarray,
+    sample_positions: np.ndarray,
+    first: np.ndarray,
+    last: np.ndarray,
+    bounded: np.ndarray,
 ) -> np.ndarray:
     """The belief port vector at time t (:class:`stt_drake.systems.belief_source.
     ObstacleBeliefSource`): a copy of the (m, n + n² + 1) `template`, with the means of the
-    `oscillating` rows set to center + amplitude·sin(ω t + phase) and those of the `moving`
-    rows to start + t·velocity (the arithmetic of :mod:`stt_drake.core.motion`)."""
+    `oscillating` rows set to center + amplitude·sin(ω t + phase), those of the `moving`
+    rows to start + t·velocity, and those of the `sampled` rows (piecewise-linear tracks:
+    track k is rows first[k]..last[k] of `sample_times`, `sample_positions`) interpolated
+    in the segment found by bisection, held outside the span, the later sample at a
+    repeated time (the arithmetic of :mod:`stt_drake.core.motion`); a `bounded` track's
+    row is active (1.0) inside its span only."""
     table = template.copy()
     n = center.shape[1]
     for k in range(oscillating.shape[0]):
@@ -1401,6 +1411,28 @@ def belief_table(
         j = moving[k]
         for i in range(n):
             table[j, i] = start[k, i] + t * velocity[k, i]
+    for k in range(sampled.shape[0]):
+        j = sampled[k]
+        low, high = first[k], last[k] - 1  # the segment starts of track k
+        index, a, b = low, low, high
+        while a <= b:  # the largest segment start at or before t (low if none)
+            middle = (a + b) // 2
+            if sample_times[middle] <= t:
+                index, a = middle, middle + 1
+            else:
+                b = middle - 1
+        elapsed = t - sample_times[index]
+        step = sample_times[index + 1] - sample_times[index]
+        if step > 0.0:
+            fraction = min(max(elapsed / step, 0.0), 1.0)
+        else:  # a step: the later sample from its time on
+            fraction = 1.0 if elapsed >= 0.0 else 0.0
+        for i in range(n):
+            before = sample_positions[index, i]
+            table[j, i] = before + fraction * (sample_positions[index + 1, i] - before)
+        if bounded[k]:
+            inside = sample_times[first[k]] <= t <= sample_times[last[k]]
+            table[j, table.shape[1] - 1] = 1.0 if inside else 0.0
     return table.reshape(-1)
 
 

@@ -164,7 +164,8 @@ class LevelSetRadii:
 @dataclass(frozen=True)
 class Forecast:
     """Predicted beliefs at knot times: ``means`` (K, m, n) m, ``sigma`` (K, m) m (the
-    isotropic reading σ = √λ_max(Σ)), ``active`` (m,) bool."""
+    isotropic reading σ = √λ_max(Σ)), ``active`` (m,) bool, or (K, m) when a slot exists at
+    some knots only (a recorded track's span)."""
 
     means: np.ndarray
     sigma: np.ndarray
@@ -173,7 +174,7 @@ class Forecast:
 
 class ScriptedForecast:
     """The scripted beliefs of `obstacles` ahead of time: their motion models and σ
-    schedules are the prediction, exactly."""
+    schedules are the prediction, exactly (a recorded track is absent outside its span)."""
 
     def __init__(self, obstacles: Sequence[ObstacleModel], dimension: int) -> None:
         self._obstacles = list(obstacles)
@@ -181,11 +182,10 @@ class ScriptedForecast:
         self._dimension = dimension
 
     def __call__(self, times: np.ndarray) -> Forecast:
-        means = np.array([self._motions.positions(float(t)) for t in times])
-        means = means.reshape(len(times), len(self._obstacles), self._dimension)
+        means = self._motions.positions_at(times)
         sigma = np.column_stack([self._sigma(o, times) for o in self._obstacles])
         sigma = sigma.reshape(len(times), len(self._obstacles))
-        return Forecast(means, sigma, np.ones(len(self._obstacles), dtype=bool))
+        return Forecast(means, sigma, self._motions.active_at(times))
 
     def _sigma(self, obstacle: ObstacleModel, times: np.ndarray) -> np.ndarray:
         if has_full_covariance(obstacle):
@@ -200,7 +200,9 @@ class ScriptedForecast:
 def tracked_forecast(tracker: KalmanTracker, tracks: TrackTable, times: np.ndarray) -> Forecast:
     """A tracker's own prediction of its tracks at `times`: each active slot's posterior
     predicted in closed form (:func:`stt_drake.core.tracking.predicted_position`), its
-    covariance growing with the prediction time; inactive slots never block."""
+    covariance growing with the prediction time at the track's own process density (the
+    adapted one of a monitored tracker, :meth:`~stt_drake.core.tracking.KalmanTracker.
+    densities`: the belief's own); inactive slots never block."""
     knots, count = len(times), len(tracks.active)
     elapsed = np.asarray(times, dtype=float)[:, None] - tracks.detection_time[None, :]
     elapsed = np.where(tracks.active[None, :], elapsed, 0.0)
@@ -210,7 +212,7 @@ def tracked_forecast(tracker: KalmanTracker, tracks: TrackTable, times: np.ndarr
         state.reshape(knots * count, -1),
         covariance.reshape(knots * count, *tracks.covariance.shape[1:]),
         elapsed.ravel(),
-        tracker.process_density,
+        np.tile(np.broadcast_to(tracker.densities(tracks), (count,)), knots),
     )
     sigma = np.sqrt(np.linalg.eigvalsh(position)[:, -1]).reshape(knots, count)
     sigma[:, ~tracks.active] = 0.0
@@ -265,8 +267,9 @@ class RoutePlanner:
         knot (0 for an inactive slot)."""
         soft = self._radii(forecast.sigma, self._soft_radius, self.settings.avoid_level)
         hard = self._radii(forecast.sigma, self._hard_radius, self._epsilon)
-        soft[:, ~forecast.active] = 0.0
-        hard[:, ~forecast.active] = 0.0
+        inactive = np.broadcast_to(~np.asarray(forecast.active, dtype=bool), soft.shape)
+        soft[inactive] = 0.0
+        hard[inactive] = 0.0
         return soft, hard
 
     def plan(

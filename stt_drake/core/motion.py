@@ -10,8 +10,13 @@ the fixed-rate tube needs those bounds to keep its guarantee over a whole update
 (:mod:`stt_drake.core.fixed_rate`, "Discrete-time guarantee"). A piecewise-linear model may repeat a
 time once: that is a step (a belief jump, e.g. a tracker's measurement update), which is
 not part of the rate bound — the tube treats it as a discontinuity and recovers from it.
+
+A recorded track (:class:`Recorded`, read from a data file by :mod:`stt_drake.config.tracks`)
+exists only over its samples' span [t_first, t_last]: outside it the obstacle's slot is
+inactive (:meth:`MotionTable.active`), as a tracker's slot without a track is.
 """
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Union
@@ -95,21 +100,112 @@ class Waypoints:
         return _slope_bound(self.times, np.asarray(self.positions, dtype=float))
 
 
-Motion = Union[ConstantVelocity, Oscillation, Waypoints]  # noqa: UP007 (drake yaml needs typing.Union)
+class Track:
+    """The samples of one recorded obstacle track: `times` (k,) s, strictly increasing, k ≥ 2,
+    and `positions` (k, n) m. Read-only arrays; a scenario copied for another seed shares
+    them (``copy.deepcopy`` returns the same track)."""
+
+    __slots__ = ("positions", "times")
+
+    def __init__(self, times: np.ndarray, positions: np.ndarray) -> None:
+        times = np.array(times, dtype=float)
+        positions = np.array(positions, dtype=float)
+        if times.ndim != 1 or positions.ndim != 2 or positions.shape[0] != times.size:
+            raise ValueError(
+                f"Track: times must be (k,) and positions (k, n), got {times.shape} and "
+                f"{positions.shape}"
+            )
+        if times.size < 2 or not bool(np.all(np.diff(times) > 0.0)):
+            raise ValueError("Track: times must increase strictly over at least 2 samples")
+        times.flags.writeable = False
+        positions.flags.writeable = False
+        self.times, self.positions = times, positions
+
+    def __deepcopy__(self, memo: dict) -> "Track":
+        return self
+
+    @property
+    def span(self) -> tuple[float, float]:
+        """(t_first, t_last) (s): the time the track exists over."""
+        return float(self.times[0]), float(self.times[-1])
+
+
+@dataclass
+class Recorded:
+    """μ(t) from a recorded track: the samples of obstacle `id` in the data file `file`
+    (CSV ``t,id,x,y[,z]`` or NPZ ``t``, ``id``, ``position``; a path relative to the
+    scenario file's folder), linear between samples. The obstacle exists over the samples'
+    span [t_first, t_last] only: outside it its slot is inactive (:meth:`active`;
+    :meth:`position` holds the end sample there, a value nothing reads).
+
+    The loader reads the file and attaches the samples (:mod:`stt_drake.config.tracks`);
+    code that has the samples makes one with :meth:`of`."""
+
+    file: str = ""
+    id: int = 0
+
+    @classmethod
+    def of(
+        cls, times: np.ndarray, positions: np.ndarray, file: str = "", id: int = 0
+    ) -> "Recorded":
+        """A recorded motion through `positions` (k, n) m at `times` (k,) s."""
+        motion = cls(file=file, id=id)
+        motion.attach(Track(times, positions))
+        return motion
+
+    def attach(self, track: Track) -> None:
+        """Give the motion its samples (the loader does, once it has read the file)."""
+        self.__dict__["_track"] = track
+
+    @property
+    def loaded(self) -> bool:
+        """Whether the samples are attached."""
+        return self.__dict__.get("_track") is not None
+
+    @property
+    def track(self) -> Track:
+        track = self.__dict__.get("_track")
+        if track is None:
+            raise ValueError(
+                f"Recorded(file={self.file!r}, id={self.id}): the track file was not read; "
+                "load the scenario with stt_drake.config (or make it with Recorded.of)"
+            )
+        return track
+
+    def position(self, t: float) -> np.ndarray:
+        track = self.track
+        return np.array([np.interp(t, track.times, axis) for axis in track.positions.T])
+
+    def active(self, t: float) -> bool:
+        """Whether the obstacle exists at t: t_first ≤ t ≤ t_last."""
+        first, last = self.track.span
+        return first <= t <= last
+
+    def speed_bound(self) -> float:
+        """Largest segment speed ‖Δp‖/Δt (m/s) over the samples."""
+        return _slope_bound(self.track.times, self.track.positions)
+
+
+Motion = Union[ConstantVelocity, Oscillation, Waypoints, Recorded]  # noqa: UP007 (drake yaml needs typing.Union)
 
 
 class MotionTable:
     """The means of many obstacles at once: oscillating and constant-velocity models are
     stacked into arrays once and evaluated in one expression each (the same functions as
-    their ``position``), other models one by one. The arrays are also what the compiled
-    belief kernel reads (:func:`stt_drake.core._kernels.belief_table`)."""
+    their ``position``); the piecewise-linear ones (:class:`Waypoints`, :class:`Recorded`)
+    are concatenated into one sample table and looked up in one ``np.searchsorted`` call for
+    all of them (:class:`_SampleTable`); any other model one by one. The stacked arrays
+    and the sample table are also what the compiled belief kernel reads
+    (:func:`stt_drake.core._kernels.belief_table`), which bisects each track itself.
+
+    Every method takes one time or, ``*_at``, an array of times (one call for all)."""
 
     def __init__(self, motions: Sequence[Motion], dimension: int) -> None:
         self._motions = list(motions)
         self.dimension = dimension
 
-        def kind(motion_type: type) -> list[int]:
-            return [j for j, m in enumerate(self._motions) if type(m) is motion_type]
+        def kind(*motion_types: type) -> list[int]:
+            return [j for j, m in enumerate(self._motions) if type(m) in motion_types]
 
         oscillating, moving = kind(Oscillation), kind(ConstantVelocity)
         self.oscillating = np.array(oscillating, dtype=int)
@@ -128,11 +224,19 @@ class MotionTable:
         shape = (len(models), dimension)
         self.start = np.array([m.start for m in models], dtype=float).reshape(shape)
         self.velocity = np.array([m.velocity for m in models], dtype=float).reshape(shape)
-        stacked = set(oscillating) | set(moving)
+        sampled = kind(Waypoints, Recorded)
+        self.sampled = np.array(sampled, dtype=int)
+        #: The piecewise-linear tracks of the `sampled` rows, concatenated (its arrays
+        #: times, positions, first, last, bounded are what the compiled kernel reads).
+        self.samples = _SampleTable([self._motions[j] for j in sampled], dimension)
+        stacked = set(oscillating) | set(moving) | set(sampled)
         self.other = [j for j in range(len(self._motions)) if j not in stacked]
+        #: Rows of the obstacles that exist over a span only (:class:`Recorded`).
+        self.bounded = self.sampled[self.samples.bounded]
 
     def fill_others(self, means: np.ndarray, t: float) -> None:
-        """Write the means of the models that are not stacked into rows of `means`."""
+        """Write the means of the models none of the stacked arrays hold (any model
+        beyond the four kinds of :data:`Motion`) into rows of `means`, one by one."""
         for j in self.other:
             means[j] = self._motions[j].position(t)
 
@@ -145,8 +249,106 @@ class MotionTable:
             )
         if self.moving.size:
             means[self.moving] = constant_velocity_positions(self.start, self.velocity, t)
+        if self.sampled.size:
+            means[self.sampled] = self.samples.lookup(np.array([float(t)]))[0]
         self.fill_others(means, t)
         return means
+
+    def positions_at(self, times: np.ndarray) -> np.ndarray:
+        """(K, m, n): every obstacle's mean at each of `times` (K,), one call per kind."""
+        times = np.asarray(times, dtype=float).reshape(-1)
+        means = np.empty((times.size, len(self._motions), self.dimension))
+        t = times[:, None, None]
+        if self.oscillating.size:
+            means[:, self.oscillating] = oscillation_positions(
+                self.center, self.amplitude, self.angular_frequency[:, None], self.phase, t
+            )
+        if self.moving.size:
+            means[:, self.moving] = constant_velocity_positions(self.start, self.velocity, t)
+        if self.sampled.size:
+            means[:, self.sampled] = self.samples.lookup(times)
+        for j in self.other:
+            means[:, j] = [self._motions[j].position(float(time)) for time in times]
+        return means
+
+    def active(self, t: float) -> np.ndarray:
+        """(m,) bool: which obstacles exist at t (all but a :class:`Recorded` outside its
+        span)."""
+        return self.active_at(np.array([float(t)]))[0]
+
+    def active_at(self, times: np.ndarray) -> np.ndarray:
+        """(K, m) bool: :meth:`active` at each of `times` (K,)."""
+        times = np.asarray(times, dtype=float).reshape(-1)
+        active = np.ones((times.size, len(self._motions)), dtype=bool)
+        if self.bounded.size:
+            first, last = self.samples.first_time, self.samples.last_time
+            bounded = self.samples.bounded
+            t = times[:, None]
+            active[:, self.bounded] = (first[bounded] <= t) & (t <= last[bounded])
+        return active
+
+
+class _SampleTable:
+    """Piecewise-linear tracks (:class:`Waypoints`, :class:`Recorded`) concatenated: the
+    samples of track i are rows ``first[i] .. last[i]`` of `times` and `positions`.
+
+    A lookup finds, for every track at once, the segment [k, k + 1] holding t with one
+    ``np.searchsorted`` on `keys`: track i's times shifted by i·`stride` (`stride` a power
+    of two above the whole time span, so the shifted tracks follow each other and `keys` is
+    sorted). The shift rounds (relative 2⁻⁵³ of i·stride), so the index found is then
+    corrected exactly on the unshifted times, twice each way (a Waypoints time may repeat
+    once). Held outside a track's span; at a repeated time (a step) the later sample, as
+    ``np.interp`` does."""
+
+    def __init__(self, motions: Sequence[Motion], dimension: int) -> None:
+        tracks = []
+        for motion in motions:
+            if isinstance(motion, Recorded):
+                tracks.append((motion.track.times, motion.track.positions))
+            else:
+                times = np.asarray(motion.times, dtype=float)
+                positions = np.asarray(motion.positions, dtype=float).reshape(-1, dimension)
+                if times.size == 1:  # one sample: a constant, as a zero-length step
+                    times, positions = np.repeat(times, 2), np.repeat(positions, 2, axis=0)
+                tracks.append((times, positions))
+        self.bounded = np.array([isinstance(m, Recorded) for m in motions], dtype=bool)
+        lengths = np.array([t.size for t, _ in tracks], dtype=np.int64)
+        self.last = np.cumsum(lengths) - 1
+        self.first = self.last - lengths + 1
+        if tracks:
+            self.times = np.concatenate([t for t, _ in tracks])
+            self.positions = np.concatenate([p for _, p in tracks]).reshape(-1, dimension)
+        else:
+            self.times, self.positions = np.empty(0), np.empty((0, dimension))
+        self.positions = np.ascontiguousarray(self.positions, dtype=float)
+        self.first_time = self.times[self.first] if tracks else np.empty(0)
+        self.last_time = self.times[self.last] if tracks else np.empty(0)
+        self.origin = float(self.times.min()) if tracks else 0.0
+        span = float(self.times.max()) - self.origin if tracks else 0.0
+        self.stride = 2.0 ** math.ceil(math.log2(span + 1.0))
+        self.shift = self.stride * np.arange(len(tracks), dtype=float)
+        track_of = np.repeat(np.arange(len(tracks)), lengths)
+        self.keys = (self.times - self.origin) + self.shift[track_of]
+
+    def lookup(self, times: np.ndarray) -> np.ndarray:
+        """(K, s, n): every track's position at each of `times` (K,)."""
+        t = times[:, None]
+        index = np.searchsorted(self.keys, (t - self.origin) + self.shift, side="right") - 1
+        low, high = self.first, self.last - 1  # segment starts of each track
+        index = np.clip(index, low, high)
+        for _ in range(2):  # the exact segment: times[k] ≤ t < times[k + 1] where there is one
+            index += (self.times[index + 1] <= t) & (index < high)
+            index -= (self.times[index] > t) & (index > low)
+        start, end = self.times[index], self.times[index + 1]
+        step = end - start
+        elapsed = t - start
+        fraction = np.where(
+            step > 0.0,
+            np.clip(np.divide(elapsed, step, out=np.zeros_like(step), where=step > 0.0), 0, 1),
+            elapsed >= 0.0,  # a step: the later sample from its time on
+        )
+        before, after = self.positions[index], self.positions[index + 1]
+        return before + fraction[..., None] * (after - before)
 
 
 @dataclass

@@ -22,7 +22,7 @@ from stt_drake.core.motion import MotionTable
 class ObstacleBeliefSource(LeafSystem):
     """Outputs `obstacle_belief`: [mean (n), covariance (n²), active] per obstacle (layout in
     :mod:`stt_drake.core.belief`), from each obstacle's motion model and uncertainty (σ_j(t)² I,
-    or a full Σ_j(t)); every slot active.
+    or a full Σ_j(t)); every slot active but a recorded track outside its span.
 
     Stands in for a tracker or SLAM front end; a user with a real one replaces this system
     by anything that writes the same port (:class:`stt_drake.systems.perception.ObstacleTracker`
@@ -30,8 +30,11 @@ class ObstacleBeliefSource(LeafSystem):
 
     The obstacles are read once, at construction: the constant fields are packed into a
     template and the motion models into a :class:`stt_drake.core.motion.MotionTable`
-    (oscillating and constant-velocity means in one expression per kind); σ and Σ schedules
-    are evaluated per obstacle.
+    (oscillating and constant-velocity means in one expression per kind, the piecewise-linear
+    ones in one lookup); σ and Σ schedules are evaluated per obstacle.
+
+    A recorded track (:class:`stt_drake.core.motion.Recorded`) exists over its samples' span
+    only: outside it the slot is inactive (active = 0.0), as a tracker's slot without a track.
     """
 
     def __init__(self, obstacles: Sequence[ObstacleModel], dimension: int) -> None:
@@ -61,7 +64,8 @@ class ObstacleBeliefSource(LeafSystem):
         return len(self._obstacles)
 
     def belief_vector(self, t: float) -> np.ndarray:
-        """The port value at time t (equal to ``obstacle_belief(obstacles, n, t).to_vector()``)."""
+        """The port value at time t (equal to ``obstacle_belief(obstacles, n, t).to_vector()``
+        with the active flags of :meth:`stt_drake.core.motion.MotionTable.active`)."""
         n = self._dimension
         kernel = backend.compiled("belief_table")
         if kernel is not None:
@@ -77,6 +81,12 @@ class ObstacleBeliefSource(LeafSystem):
                 motions.moving,
                 motions.start,
                 motions.velocity,
+                motions.sampled,
+                motions.samples.times,
+                motions.samples.positions,
+                motions.samples.first,
+                motions.samples.last,
+                motions.samples.bounded,
             )
             table = vector.reshape(-1, record_size(n))
             self._motions.fill_others(table[:, :n], t)
@@ -84,6 +94,8 @@ class ObstacleBeliefSource(LeafSystem):
             table = self._template.copy()
             vector = table.reshape(-1)
             table[:, :n] = self._motions.positions(t)
+            if self._motions.bounded.size:  # a recorded track exists over its span only
+                table[:, -1] = self._motions.active(t)
         for j in self._scheduled:  # σ(t)² I, or Σ(t)
             obstacle = self._obstacles[j]
             full = obstacle_covariance(obstacle, t, n)
