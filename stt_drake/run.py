@@ -36,6 +36,7 @@ from stt_drake.story import (
     separation_after_entry,
     stall_cause,
     target_separation_violations,
+    track_consistency,
 )
 from stt_drake.systems.monitor import StepRateWatchdog, step_rate_limit
 
@@ -327,6 +328,9 @@ def simulate(
             "max_window_steps_per_s": watchdog.max_rate,
         },
         "obstacles": obstacle_report(log, scenario),
+        "tracks": track_consistency(
+            log, 0.95 if scenario.perception is None else scenario.perception.nis_confidence
+        ),
         **plant_metrics,
     }
     plant_summary = built.plant_summary(metrics) if built.plant_summary is not None else []
@@ -424,6 +428,28 @@ def _stall_lines(stalls: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
+def _track_lines(tracks: list[dict[str, Any]]) -> list[str]:
+    """The tracker's consistency: one line for the calibration, a WARNING per track whose
+    belief was overconfident or badly calibrated (the guarantees held w.r.t. that belief,
+    not necessarily w.r.t. the true obstacles)."""
+    if not tracks:
+        return []
+    calibrations = [t["calibration_95"] for t in tracks if t["calibration_95"] is not None]
+    lines = []
+    if calibrations:
+        lines.append(
+            f"  tracker: true centre in the belief's 95 % ellipsoid at "
+            f"{min(calibrations):.3f}–{max(calibrations):.3f} of the tracked times per track"
+        )
+    for track in tracks:
+        if track["warning"]:
+            lines.append(
+                f"  WARNING: belief inconsistent with the truth, {track['warning']}; the "
+                "guarantees hold w.r.t. this belief only"
+            )
+    return lines
+
+
 def summary(result: RunResult) -> str:
     """A short human-readable summary of a run."""
     m = result.metrics
@@ -457,5 +483,6 @@ def summary(result: RunResult) -> str:
             f"ε = {o['epsilon']:.3f}"
         )
     lines += result.plant_summary
+    lines += _track_lines(m.get("tracks", []))
     lines.append("  result: " + ("SUCCESS" if result.success else "FAILURE"))
     return "\n".join(lines)

@@ -1,6 +1,7 @@
 """What happened during a run beyond the guarantees: the assumptions the scenario broke,
-the belief discontinuities and the stalls (metrics.json keys `assumptions`,
-`belief_discontinuities` and `stalls`, the rule of the last in
+the belief discontinuities, the stalls and, with a tracker, how consistent and calibrated
+each track was (metrics.json keys `assumptions`, `belief_discontinuities`, `stalls` and
+`tracks`, the rule of the stalls in
 :mod:`stt_drake.core.progress`; the reach story is :func:`stt_drake.core.invariants.reach_story`,
 the recovery episodes :class:`stt_drake.core.invariants.RecoveryTracker`, watched at every
 step).
@@ -28,6 +29,14 @@ from stt_drake.config.assumptions import (
     VOIDED_CLAIM,
     VOIDED_CLAIM_TEXT,
     target_separation,
+)
+from stt_drake.core.consistency import (
+    CALIBRATION_WARNING,
+    CONSISTENCY_FIELDS,
+    OVERCONFIDENT_SHARE,
+    calibration_inside,
+    calibration_upper_bound,
+    run_nis_bounds,
 )
 from stt_drake.runlog import RunLog
 
@@ -198,3 +207,88 @@ def stall_cause(stall: Mapping[str, Any]) -> str:
         f"t = {stall['start_s']:.2f} s to the end (c = [{position}], "
         f"{stall['distance_m']:.2f} m from it)"
     )
+
+
+def track_consistency(log: Mapping[str, np.ndarray], confidence: float) -> list[dict[str, Any]]:
+    """Per obstacle of a run with a monitored tracker (its log has `tracker_consistency`,
+    :class:`stt_drake.systems.perception.ObstacleTracker`'s `consistency` output, and
+    `true_obstacle_position`); [] otherwise. metrics.json key `tracks`.
+
+    Returns:
+        One record per obstacle: `index`; `calibration_95` (fraction of the logged times
+        with a track at which the TRUE centre lay in the belief's 95 % ellipsoid,
+        :func:`stt_drake.core.consistency.calibration_counts`; null without a tracked time)
+        and `tracked_samples`; `nis_updates` (corrections), `nis_mean` (null without one)
+        and `nis_interval` (the interval of the mean NIS of a consistent track at
+        `confidence`, :func:`stt_drake.core.consistency.run_nis_bounds`);
+        `nis_mean_above_interval` (the whole-run test failed high: informative; an adaptive
+        filter on a manoeuvring obstacle is above it by construction, it reacts to high
+        NIS); `events` — the episodes in which the window test was above its interval
+        (the track overconfident): `count`, `first_s` (null: none), `duration_s` (an
+        episode still open at the end lasts to the last logged time) and `share` (that
+        duration over the tracked time; a consistent track's is about (1 − c)/2);
+        `max_noise_scale` (the largest adaptive scale s, 1: never raised); `warning` (a
+        sentence, or null when the belief was consistent and calibrated: share ≤
+        :data:`~stt_drake.core.consistency.OVERCONFIDENT_SHARE` and the calibration's 99 %
+        upper bound `calibration_95_upper_99` ≥
+        :data:`~stt_drake.core.consistency.CALIBRATION_WARNING`: one run's logged times are
+        correlated, worth `calibration_effective_samples` independent ones,
+        :func:`~stt_drake.core.consistency.calibration_upper_bound`).
+    """
+    run = RunLog.of(log)
+    if "tracker_consistency" not in run or "true_obstacle_position" not in run or not run.samples:
+        return []
+    count, n = run.count, run.dimension
+    truth = run.rows("true_obstacle_position").reshape(run.samples, count, n)
+    inside, active = calibration_inside(truth, run.mean, run.belief_covariance, run.active)
+    tracked = active.sum(axis=0)
+    stats = run.rows("tracker_consistency")[-1].reshape(count, CONSISTENCY_FIELDS)
+    end = float(run.t[-1])
+    step = float(np.median(np.diff(run.t))) if run.samples > 1 else 0.0
+    records = []
+    for j in range(count):
+        total, updates, events, first, duration, since, scale = stats[j]
+        if np.isfinite(since):
+            duration += end - since
+        mean = total / updates if updates else None
+        interval = run_nis_bounds(int(updates), n, confidence) if updates else None
+        series = inside[active[:, j], j]
+        calibration = float(series.mean()) if tracked[j] else None
+        upper, effective = calibration_upper_bound(series)
+        over = bool(mean is not None and mean > interval[1])
+        share = duration / (tracked[j] * step) if tracked[j] and step > 0.0 else 0.0
+        problems = []
+        if share > OVERCONFIDENT_SHARE:
+            problems.append(
+                f"overconfident (NIS window test above its {confidence:g} interval) for "
+                f"{duration:.2f} s, {share:.0%} of its tracked time, in {int(events)} "
+                f"episodes from {first:.2f} s; NIS mean {mean:.2f}"
+            )
+        if calibration is not None and upper < CALIBRATION_WARNING:
+            problems.append(
+                f"true centre in its 95 % ellipsoid at {calibration:.3f} of the tracked times "
+                f"(99 % upper bound {upper:.3f} < {CALIBRATION_WARNING:g}, the times worth "
+                f"{effective:.0f} independent samples)"
+            )
+        records.append(
+            {
+                "index": j,
+                "calibration_95": calibration,
+                "calibration_95_upper_99": upper if tracked[j] else None,
+                "calibration_effective_samples": effective,
+                "tracked_samples": int(tracked[j]),
+                "nis_updates": int(updates),
+                "nis_mean": mean,
+                "nis_interval": None if interval is None else list(interval),
+                "nis_mean_above_interval": over,
+                "events": {
+                    "count": int(events),
+                    "first_s": float(first) if np.isfinite(first) else None,
+                    "duration_s": float(duration),
+                    "share": float(share),
+                },
+                "max_noise_scale": float(max(scale, 1.0)),
+                "warning": f"track {j}: " + "; ".join(problems) if problems else None,
+            }
+        )
+    return records

@@ -201,8 +201,8 @@ def test_memory_budget_is_overridden_by_the_environment_and_by_the_scenario(monk
 
 
 def test_memory_estimate_counts_samples_obstacles_and_copies():
-    # 501 samples of 3 obstacles in 2D: 3·(2 + 10) + 128 values, 8 B, 3 copies, + 3·4 kB.
-    assert limits.estimate_run_bytes(501, 3, 2) == 3 * 8 * 501 * (3 * 12 + 128) + 3 * 4096
+    # 501 samples of 3 obstacles in 2D: 3·(2 + 4 + 7) + 128 values, 8 B, 3 copies, + 3·4 kB.
+    assert limits.estimate_run_bytes(501, 3, 2) == 3 * 8 * 501 * (3 * 13 + 128) + 3 * 4096
 
 
 def test_an_oversized_file_is_refused_unread(tmp_path, monkeypatch):

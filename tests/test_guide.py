@@ -5,12 +5,15 @@ against its own belief, and the compiled search against the plain-Python one."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy import optimize, stats
 
 from stt_drake.config import Obstacle
 from stt_drake.core import backend
+from stt_drake.core.consistency import Adaptation
 from stt_drake.core.guide import (
     GuideSettings,
     LevelSetRadii,
@@ -21,7 +24,7 @@ from stt_drake.core.guide import (
     tracked_forecast,
 )
 from stt_drake.core.motion import ConstantVelocity, SigmaSchedule
-from stt_drake.core.tracking import KalmanTracker, TrackTable
+from stt_drake.core.tracking import KalmanTracker
 
 
 def scipy_avoid_probability(distance, sigma, radius, n):
@@ -171,14 +174,25 @@ def test_scripted_forecast_follows_motion_and_schedule():
     assert np.allclose(f.sigma[:, 0], [0.1, 0.2, 0.3])
 
 
-def test_tracked_forecast_is_the_trackers_own_prediction():
-    tracker = KalmanTracker(2, 0.05, 0.01 * np.eye(2), 1.0, 1.0)
-    tracks = TrackTable.empty(2, 2)
+@pytest.mark.parametrize("adaptive", [False, True])
+def test_tracked_forecast_is_the_trackers_own_prediction(adaptive):
+    """... with the track's own process density: an adaptive tracker's raised one too."""
+    adaptation = Adaptation(2) if adaptive else None
+    tracker = KalmanTracker(2, 0.05, 0.01 * np.eye(2), 1.0, 1.0, adaptation=adaptation)
+    tracks = tracker.empty(2)
     state = tracks.state.copy()
     state[0] = [1.0, 2.0, 0.5, -0.2]
     covariance = tracks.covariance.copy()
     covariance[0] = np.diag([0.01, 0.02, 0.3, 0.1])
-    tracks = TrackTable(state, covariance, np.array([1.0, -np.inf]), np.array([True, False]))
+    tracks = dataclasses.replace(
+        tracks,
+        state=state,
+        covariance=covariance,
+        detection_time=np.array([1.0, -np.inf]),
+        active=np.array([True, False]),
+    )
+    if adaptive:  # a track whose noise was raised 40-fold by a manoeuvre
+        tracks = dataclasses.replace(tracks, scale=np.array([40.0, 1.0]))
     times = np.array([1.5, 3.0, 10.0])
     f = tracked_forecast(tracker, tracks, times)
     for k, t in enumerate(times):

@@ -177,11 +177,26 @@ def test_every_packaged_scenario_loads_with_a_positive_center_speed(path):
 # --------------------------------------------------------------------------- 6. budgets
 
 
+def _logged_width(text: str, count: int) -> int:
+    """Values per sample every logger of the built diagram of `text` with its first
+    `count` obstacles records (what the memory estimate counts per obstacle)."""
+    from pydrake.systems.primitives import VectorLogSink
+
+    from stt_drake.build.diagram import build_diagram
+
+    scenario = parse_scenario(text)
+    scenario.obstacles = scenario.obstacles[:count]
+    diagram = build_diagram(scenario).diagram
+    sinks = [s for s in diagram.GetSystems() if isinstance(s, VectorLogSink)]
+    return sum(sink.get_input_port(0).size() for sink in sinks)
+
+
 def test_perception_is_in_the_memory_estimate():
     """5 000 tracked obstacles for 10 s took 1.6 GB and ran for minutes: Drake's loggers
     reserve 1 000 samples whatever the run logs, and perception adds the truth path, the
     sensor draws and a log of the true centres."""
-    assert limits.obstacle_values_per_sample(2, covariance=True, perception=True) == 19
+    per_obstacle = _logged_width(PERCEPTION, 3) - _logged_width(PERCEPTION, 2)
+    assert limits.obstacle_values_per_sample(2, perception=True) == per_obstacle
     obstacles = "".join(
         f"  - motion: !ConstantVelocity {{start: [{8 + k % 70 * 0.6}, {8 + k // 70 * 0.6}], "
         "velocity: [0.0, 0.0]}\n    radius: 0.1\n    sigma: 0.05\n    epsilon: 0.9\n"
@@ -193,7 +208,12 @@ def test_perception_is_in_the_memory_estimate():
     with pytest.raises(ScenarioError) as info:
         parse_scenario(short.replace("max_memory_gb: 0.0\n", "max_memory_gb: 1.0\n"))
     message = str(info.value)
-    assert message.startswith("scenario.obstacles: the run would need about 1.42 GB (logs 1.38 GB")
+    # the logs of 3 000 tracked obstacles: Drake's 1 000 samples × the measured width
+    logs = limits.LOG_COPIES * 8 * limits.DRAKE_LOG_CAPACITY * (
+        3000 * per_obstacle + limits.FIXED_VALUES_PER_SAMPLE
+    ) + 3000 * limits.OBSTACLE_BYTES
+    assert message.startswith("scenario.obstacles: the run would need about ")
+    assert f"(logs {logs / 1e9:.3g} GB" in message
     assert "Drake's loggers hold 1000 at least" in message and "the truth path" in message
 
 

@@ -52,6 +52,7 @@ METRICS_KEYS = {
     "recovery",
     "stalls",
     "step_rate",
+    "tracks",
 }
 OBSTACLE_KEYS = {
     "index",
@@ -232,6 +233,7 @@ def test_cli_runs_the_uav_scenario_with_the_2d_contract_and_a_replay(tmp_path):
 
     metrics = json.loads((out / "metrics.json").read_text())
     assert set(metrics) == METRICS_KEYS
+    assert metrics["tracks"] == []  # no tracker: no track records
     assert metrics["scenario"] == "uav_paper" and metrics["reached"] is True
     assert 0 < metrics["t_reach"] < metrics["sim_time_s"] == pytest.approx(40.0)
     assert set(metrics["invariants"]) == INVARIANT_KEYS

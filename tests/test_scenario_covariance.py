@@ -29,6 +29,8 @@ from stt_drake.core.belief import (
 )
 from stt_drake.core.motion import ConstantVelocity, CovarianceSchedule, SigmaSchedule
 
+DIAGRAMS = Path(__file__).resolve().parent.parent / "diagrams"
+
 UAV_BASE = Path(__file__).resolve().parent / "bad_scenarios" / "base" / "uav.yaml"
 OBSTACLE0 = "scenario.obstacles[0]"
 
@@ -581,11 +583,29 @@ def test_an_isotropic_field_may_use_the_fixed_rate_tube(tmp_path):
 # --------------------------------------------------------------------------- memory
 
 
-def test_the_memory_estimate_counts_the_logged_covariances(tmp_path, monkeypatch):
-    # 501 samples of 3 obstacles in 2D: 3·(2 + 10 + 2²) + 128 values, 8 B, 3 copies, + 3·4 kB.
-    expected = 3 * 8 * 501 * (3 * 16 + 128) + 3 * 4096
-    assert limits.estimate_run_bytes(501, 3, 2, covariance=True) == expected
+@pytest.mark.parametrize("scenario", ["omni_hardware_case1", "omni_anisotropic", "uav_paper"])
+def test_the_memory_estimate_counts_what_the_loggers_record(scenario):
+    """Per obstacle and sample, the estimate counts exactly the values the built diagram's
+    loggers record (Σ_j is on the belief port, isotropic or not): measured as the logged
+    width with one obstacle more."""
+    from pydrake.systems.primitives import VectorLogSink
+
+    from stt_drake.build.diagram import build_diagram
+
+    def width(count: int) -> int:
+        loaded = load_scenario(DIAGRAMS / f"{scenario}.yaml")
+        loaded.obstacles = loaded.obstacles[:count]
+        sinks = [
+            s for s in build_diagram(loaded).diagram.GetSystems() if isinstance(s, VectorLogSink)
+        ]
+        return sum(sink.get_input_port(0).size() for sink in sinks)
+
+    dimension = load_scenario(DIAGRAMS / f"{scenario}.yaml").dimension
+    assert limits.obstacle_values_per_sample(dimension) == width(3) - width(2)
+
+
+def test_the_memory_estimate_names_its_terms(tmp_path, monkeypatch):
     monkeypatch.setenv(limits.MEMORY_BUDGET_ENV, "0.001")
     text = omni_text(PAIRS["covariance"]).replace("duration: 10.0", "duration: 60.0")
     message = assert_refused(text, tmp_path, "scenario.log_period", "memory budget")
-    assert "+ n² values per obstacle" in message
+    assert f"(n + n² + {limits.OBSTACLE_VALUES_PER_SAMPLE} values per obstacle" in message

@@ -40,7 +40,7 @@ from stt_drake.config.perception_budget import perception_demands, ring_copy_sec
 from stt_drake.config.schedules import check_schedules, schedule_entries
 from stt_drake.config.schema import AssumptionError, FrankaArm, Scenario, ScenarioError
 from stt_drake.config.source import short_repr
-from stt_drake.core.belief import has_full_covariance
+from stt_drake.core.consistency import CONSISTENCY_FIELDS
 from stt_drake.core.rules import InitialConditionError, RuleError, join_field
 
 #: Largest magnitude of any number in a scenario (metres, seconds, gains, ...): a million
@@ -70,10 +70,11 @@ MEMORY_BUDGET_ENV = "STT_DRAKE_MEMORY_BUDGET_GB"
 #: and one time stamp per logger.
 FIXED_VALUES_PER_SAMPLE = 128
 
-#: Logged values per obstacle and sample beyond the n of its mean: σ, radius, ε, p_d
-#: (belief), q_j, d̂_j, θ_j (diagnostics), the recovery flag and two avoidance probabilities
-#: (and the n² entries of Σ_j in a run with full covariances).
-OBSTACLE_VALUES_PER_SAMPLE = 10
+#: Logged values per obstacle and sample beyond the n of its mean and the n² of its Σ_j (the
+#: belief port carries both, isotropic or not): the active flag (belief), q_j, d̂_j, θ_j
+#: (diagnostics), the recovery flag and two avoidance probabilities (measured on the built
+#: diagrams' loggers in the tests).
+OBSTACLE_VALUES_PER_SAMPLE = 7
 
 #: How many times the logged data is held at once: Drake's loggers grow their storage by
 #: doubling (up to 2×), and the run log copies it once.
@@ -88,9 +89,11 @@ OBSTACLE_BYTES = 4096
 #: 1.2 GB in the loggers for 51 samples).
 DRAKE_LOG_CAPACITY = 1000
 
-#: Logged values per obstacle and sample that perception adds: its true centre (n) and the
-#: tracker's update count (1); the belief's n² covariance entries are logged as well.
-PERCEPTION_VALUES_PER_SAMPLE = 1
+#: Logged values per obstacle and sample that perception adds beyond its true centre (n):
+#: the tracker's update count (1) and its consistency statistics (7,
+#: :data:`stt_drake.core.consistency.CONSISTENCY_FIELDS`); the belief's n² covariance
+#: entries are logged as well.
+PERCEPTION_VALUES_PER_SAMPLE = 1 + CONSISTENCY_FIELDS
 
 #: Wall seconds one obstacle costs per integrator step, measured here: with perception
 #: (the tracker's prediction, the monitor's exact full-covariance margins of every track in
@@ -227,33 +230,25 @@ def logged_samples(scenario: Scenario) -> int:
 
 
 def estimate_run_bytes(
-    samples: int,
-    obstacles: int,
-    dimension: int,
-    covariance: bool = False,
-    perception: bool = False,
+    samples: int, obstacles: int, dimension: int, perception: bool = False
 ) -> int:
     """Bytes a run needs for its logs and obstacles (an estimate, see the constants):
-    LOG_COPIES·8·samples·(obstacles·(n + OBSTACLE_VALUES_PER_SAMPLE) +
-    FIXED_VALUES_PER_SAMPLE) + obstacles·OBSTACLE_BYTES; with `covariance` (some obstacle
-    has a full covariance: every Σ_j is logged) n² more values per obstacle and sample, with
-    `perception` n + :data:`PERCEPTION_VALUES_PER_SAMPLE` more (`samples`: what the loggers
-    hold, at least :data:`DRAKE_LOG_CAPACITY` in a run, see :func:`check_memory`)."""
-    per_obstacle = obstacle_values_per_sample(dimension, covariance, perception)
+    LOG_COPIES·8·samples·(obstacles·(n + n² + OBSTACLE_VALUES_PER_SAMPLE) +
+    FIXED_VALUES_PER_SAMPLE) + obstacles·OBSTACLE_BYTES; with `perception` n +
+    :data:`PERCEPTION_VALUES_PER_SAMPLE` more values per obstacle and sample (`samples`:
+    what the loggers hold, at least :data:`DRAKE_LOG_CAPACITY` in a run, see
+    :func:`check_memory`)."""
+    per_obstacle = obstacle_values_per_sample(dimension, perception)
     values = obstacles * per_obstacle + FIXED_VALUES_PER_SAMPLE
     return LOG_COPIES * 8 * samples * values + obstacles * OBSTACLE_BYTES
 
 
-def obstacle_values_per_sample(
-    dimension: int, covariance: bool = False, perception: bool = False
-) -> int:
-    """Logged values per obstacle and sample: n + :data:`OBSTACLE_VALUES_PER_SAMPLE`, the
-    n² entries of Σ_j when the run logs full covariances, and the true centre and update
-    count of a tracked obstacle."""
-    extra = dimension * dimension if covariance else 0
-    if perception:
-        extra += dimension + PERCEPTION_VALUES_PER_SAMPLE
-    return dimension + OBSTACLE_VALUES_PER_SAMPLE + extra
+def obstacle_values_per_sample(dimension: int, perception: bool = False) -> int:
+    """Logged values per obstacle and sample: n + n² (the belief's mean and Σ_j) +
+    :data:`OBSTACLE_VALUES_PER_SAMPLE`, and the true centre, update count and consistency
+    statistics of a tracked obstacle."""
+    extra = dimension + PERCEPTION_VALUES_PER_SAMPLE if perception else 0
+    return dimension + dimension * dimension + OBSTACLE_VALUES_PER_SAMPLE + extra
 
 
 def memory_budget_bytes(scenario: Scenario) -> tuple[float, str]:
@@ -319,16 +314,15 @@ def check_memory(scenario: Scenario, drawn: bool = False) -> None:
     samples = logged_samples(scenario)
     held = max(samples, DRAKE_LOG_CAPACITY)
     perception = scenario.perception
-    covariance = perception is not None or any(has_full_covariance(o) for o in scenario.obstacles)
     n = scenario.dimension
-    logs = estimate_run_bytes(held, obstacles, n, covariance, perception is not None)
+    logs = estimate_run_bytes(held, obstacles, n, perception is not None)
     demands = []
     if perception is not None:
         demands = perception_demands(perception, obstacles, n, scenario.duration)
     needed = logs + sum(demand.bytes for demand in demands)
     if needed <= budget:
         return
-    per_obstacle = obstacle_values_per_sample(n, covariance, perception is not None)
+    per_obstacle = obstacle_values_per_sample(n, perception is not None)
     largest = max(demands, key=lambda demand: demand.bytes, default=None)
     if largest is not None and largest.bytes > logs:
         path, value = largest.path, getattr(perception, largest.path.rsplit(".", 1)[1])
@@ -339,8 +333,9 @@ def check_memory(scenario: Scenario, drawn: bool = False) -> None:
     parts = [
         f"logs {logs / _GB:.3g} GB: {samples} logged samples (Drake's loggers hold "
         f"{DRAKE_LOG_CAPACITY} at least) of {obstacles} obstacles in {n}D: duration/log_period "
-        f"+ 1 samples × (n + {OBSTACLE_VALUES_PER_SAMPLE}{' + n²' if covariance else ''}"
-        f"{' + n + 1' if perception is not None else ''} values per obstacle + "
+        f"+ 1 samples × (n + n² + {OBSTACLE_VALUES_PER_SAMPLE}"
+        f"{f' + n + {PERCEPTION_VALUES_PER_SAMPLE}' if perception is not None else ''} values "
+        "per obstacle + "
         f"{FIXED_VALUES_PER_SAMPLE}) × 8 B × {LOG_COPIES} copies"
     ]
     parts += [f"{demand.what} = {demand.bytes / _GB:.3g} GB" for demand in demands]

@@ -3,10 +3,12 @@ checked by :func:`stt_drake.config.validate.validate` after the obstacles: at le
 obstacle to perceive; finite, non-negative densities, range and latency; periods > 0; one
 noise model per pair (:func:`check_noise_fields`); valid noise covariances; a sensor that
 can get a detection to the tracker before the run ends; a track timeout longer than a
-detection's way to the tracker; and a continuous-time tube. Every broken rule raises
-:class:`stt_drake.config.schema.ScenarioError` naming ``scenario.perception.<field>``, the
-rule and the value. What the chain allocates and costs is bounded before anything is drawn,
-by :func:`stt_drake.config.limits.check_limits` (:mod:`stt_drake.config.perception_budget`).
+detection's way to the tracker; a boolean `adaptive`, an integer `nis_window` in
+[1, MAX_NIS_WINDOW] and `nis_confidence` in (0, 1); and a continuous-time tube. Every
+broken rule raises :class:`stt_drake.config.schema.ScenarioError` naming
+``scenario.perception.<field>``, the rule and the value. What the chain allocates and
+costs is bounded before anything is drawn, by :func:`stt_drake.config.limits.check_limits`
+(:mod:`stt_drake.config.perception_budget`).
 """
 
 import math
@@ -20,6 +22,10 @@ NOISE_PAIRS = (
     ("noise_sigma", "noise_covariance"),
     ("tracker_noise_sigma", "tracker_noise_covariance"),
 )
+
+#: The largest NIS window (values kept per track in the tracker's discrete state).
+MAX_NIS_WINDOW = 1000
+
 
 def check_noise_fields(given: list[str], path: str) -> None:
     """Of each pair of :data:`NOISE_PAIRS`, at most one among the fields `given` (the names
@@ -119,6 +125,27 @@ def validate_perception(perception: Perception, scenario: Scenario) -> None:
         f"must exceed sensor_period + latency = {way:g} s (the time between two deliveries "
         "of a track's detections), or every new track is lost at once",
         perception.track_timeout,
+    )
+    require(
+        isinstance(perception.adaptive, bool),
+        f"{path}.adaptive",
+        "must be true or false",
+        perception.adaptive,
+    )
+    window = perception.nis_window
+    require(
+        isinstance(window, int) and not isinstance(window, bool) and 1 <= window <= MAX_NIS_WINDOW,
+        f"{path}.nis_window",
+        f"must be an integer in [1, {MAX_NIS_WINDOW}] (the corrections the NIS test sums; "
+        "each is kept per track in the tracker's state)",
+        window,
+    )
+    confidence = perception.nis_confidence
+    require(
+        0.0 < confidence < 1.0,
+        f"{path}.nis_confidence",
+        "must be in (0, 1) (the probability of the NIS test's two-sided χ² interval)",
+        confidence,
     )
     require(
         scenario.tube.update_rate_hz == 0.0,

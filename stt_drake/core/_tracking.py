@@ -162,3 +162,196 @@ def track_update(
     else:
         raise ValueError("track_update is compiled for n = 1, 2, 3 only")
     return x, p
+
+
+# The monitored update (NIS and adaptive process noise, :mod:`stt_drake.core.consistency`).
+
+
+@njit(**_JIT)
+def _nis_slot(
+    x: np.ndarray,
+    p: np.ndarray,
+    z: np.ndarray,
+    r: np.ndarray,
+    chol: np.ndarray,
+    y: np.ndarray,
+    n: int,
+) -> float:
+    """ν = yᵀ S⁻¹ y of one predicted slot, y = z − p, S = P_pp + R (Cholesky, forward
+    substitution: ν = ‖L⁻¹ y‖²)."""
+    literally(n)
+    for i in range(n):
+        for k in range(i + 1):
+            s = p[i, k] + r[i, k]
+            for t in range(k):
+                s -= chol[i, t] * chol[k, t]
+            chol[i, k] = np.sqrt(s) if i == k else s / chol[k, k]
+    nis = 0.0
+    for i in range(n):
+        s = z[i] - x[i]
+        for t in range(i):
+            s -= chol[i, t] * y[t]
+        y[i] = s / chol[i, i]
+        nis += y[i] * y[i]
+    return nis
+
+
+@njit(**_JIT)
+def _monitored_slots(
+    x: np.ndarray,
+    p: np.ndarray,
+    dt: np.ndarray,
+    z: np.ndarray,
+    base: float,
+    noise_covariance: np.ndarray,
+    scale: np.ndarray,
+    ring: np.ndarray,
+    count: np.ndarray,
+    nis: np.ndarray,
+    test: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    gain: float,
+    step_cap: float,
+    relax: float,
+    max_scale: float,
+    n: int,
+) -> None:
+    """Every slot predicted with density base·scale[j], its NIS ν taken, the window test
+    run, the scale adapted (gain > 0) and the prediction topped up with the extra process
+    noise, then corrected; all in place."""
+    literally(n)
+    chol, gain_t = np.empty((n, n)), np.empty((n, 2 * n))
+    w, m = np.empty((2 * n, 2 * n)), np.empty((2 * n, n))
+    y = np.empty(n)
+    window = ring.shape[1]
+    for j in range(x.shape[0]):
+        h = dt[j]
+        old = scale[j]
+        _predict_slot(x[j], p[j], h, base * old, n)
+        value = _nis_slot(x[j], p[j], z[j], noise_covariance, chol, y, n)
+        nis[j] = value
+        k = int(count[j])
+        ring[j, k % window] = value
+        k += 1
+        count[j] = k
+        used = min(k, window)
+        total = 0.0
+        for i in range(used):
+            total += ring[j, i]
+        if total > upper[used - 1]:
+            test[j] = 1.0
+        elif total < lower[used - 1]:
+            test[j] = -1.0
+        else:
+            test[j] = 0.0
+        if gain > 0.0:
+            step = min(value / n - 1.0, step_cap)
+            if step < 0.0:
+                step *= relax
+            new = min(max(old * np.exp(gain * step), 1.0), max_scale)
+            scale[j] = new
+            extra = base * (new - old)
+            if extra != 0.0:
+                for i in range(n):
+                    p[j, i, i] += extra * h * h * h / 3.0
+                    p[j, i, n + i] += extra * h * h / 2.0
+                    p[j, n + i, i] += extra * h * h / 2.0
+                    p[j, n + i, n + i] += extra * h
+        _correct_slot(x[j], p[j], z[j], noise_covariance, chol, gain_t, w, m, n)
+
+
+@njit(**_JIT)
+def track_update_monitored(
+    state: np.ndarray,
+    covariance: np.ndarray,
+    dt: np.ndarray,
+    z: np.ndarray,
+    base: float,
+    noise_covariance: np.ndarray,
+    scale: np.ndarray,
+    ring: np.ndarray,
+    count: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    gain: float,
+    step_cap: float,
+    relax: float,
+    max_scale: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`stt_drake.core.tracking.monitored_update` (new arrays), for n = 1, 2, 3:
+    (state, covariance, scale, ring, count, nis, test).
+
+    Raises:
+        ValueError: another n.
+    """
+    x, p = state.copy(), covariance.copy()
+    s, r, c = scale.copy(), ring.copy(), count.copy()
+    nis, test = np.empty(x.shape[0]), np.empty(x.shape[0])
+    n = z.shape[1]
+    if n == 1:
+        _monitored_slots(
+            x,
+            p,
+            dt,
+            z,
+            base,
+            noise_covariance,
+            s,
+            r,
+            c,
+            nis,
+            test,
+            lower,
+            upper,
+            gain,
+            step_cap,
+            relax,
+            max_scale,
+            1,
+        )
+    elif n == 2:
+        _monitored_slots(
+            x,
+            p,
+            dt,
+            z,
+            base,
+            noise_covariance,
+            s,
+            r,
+            c,
+            nis,
+            test,
+            lower,
+            upper,
+            gain,
+            step_cap,
+            relax,
+            max_scale,
+            2,
+        )
+    elif n == 3:
+        _monitored_slots(
+            x,
+            p,
+            dt,
+            z,
+            base,
+            noise_covariance,
+            s,
+            r,
+            c,
+            nis,
+            test,
+            lower,
+            upper,
+            gain,
+            step_cap,
+            relax,
+            max_scale,
+            3,
+        )
+    else:
+        raise ValueError("track_update_monitored is compiled for n = 1, 2, 3 only")
+    return x, p, s, r, c, nis, test

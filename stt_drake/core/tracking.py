@@ -22,6 +22,13 @@ The belief at a time t after the last posterior is the closed-form prediction: m
 p + v Δt, covariance the position block of F P Fᵀ + Q(Δt), Δt = t − (posterior time), so it
 grows continuously between detections and through dropouts.
 
+Consistency (``KalmanTracker.adaptation``, :mod:`stt_drake.core.consistency`): a monitored
+tracker also takes each correction's normalised innovation squared, runs the NIS window
+test and, when adaptive, scales each track's process density (q_base·s_j, the scale in
+the track's record); the belief is then predicted with the track's own density. Without
+adaptation (``adaptive: false``) the state and covariance are bit for bit those of the
+plain filter.
+
 The functions take and return explicit arrays, for m slots: ``state`` (m, 2n),
 ``covariance`` (m, 2n, 2n), ``dt`` (m,) or a scalar (s), ``z`` (m, n) (m). The hot one,
 :func:`update` (what a tracker step runs), uses the compiled kernel of
@@ -31,19 +38,25 @@ The functions take and return explicit arrays, for m slots: ``state`` (m, 2n),
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass
 
 import numpy as np
 
 from stt_drake.core import backend
 from stt_drake.core.belief import GaussianBelief
+from stt_drake.core.consistency import Adaptation, monitored_update_numpy
 from stt_drake.core.perception import Detections
 
 
 def predict(
-    state: np.ndarray, covariance: np.ndarray, dt: float | np.ndarray, density: float
+    state: np.ndarray,
+    covariance: np.ndarray,
+    dt: float | np.ndarray,
+    density: float | np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(F x, F P Fᵀ + Q(dt)) per slot, with the slot's own dt (s) and density q (m²/s³)."""
+    """(F x, F P Fᵀ + Q(dt)) per slot, with the slot's own dt (s) and density q (m²/s³; a
+    float or one per slot)."""
     dt = _per_slot(dt, state.shape[0])
     n = state.shape[1] // 2
     transition = _transitions(dt, n)
@@ -97,11 +110,16 @@ def birth(
 
 
 def predicted_position(
-    state: np.ndarray, covariance: np.ndarray, dt: float | np.ndarray, density: float
+    state: np.ndarray,
+    covariance: np.ndarray,
+    dt: float | np.ndarray,
+    density: float | np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The position belief dt (s) after the posterior, in closed form: mean p + v dt (m, n)
     and covariance (m, n, n), the position block of F P Fᵀ + Q(dt):
-    P_pp + dt (P_pv + P_vp) + dt² P_vv + q dt³/3 I."""
+    P_pp + dt (P_pv + P_vp) + dt² P_vv + q dt³/3 I (q: a float or one per slot, m²/s³)."""
+    if isinstance(density, np.ndarray):
+        density = density[:, None, None]
     n = state.shape[1] // 2
     dt = _per_slot(dt, state.shape[0])[:, None, None]
     mean = state[:, :n] + dt[:, 0] * state[:, n:]
@@ -127,18 +145,23 @@ def _transitions(dt: np.ndarray, n: int) -> np.ndarray:
     return transition
 
 
-def _process_noise(dt: np.ndarray, density: float, n: int) -> np.ndarray:
-    """Q(dt) = q [[dt³/3, dt²/2], [dt²/2, dt]] ⊗ I_n per slot, (m, 2n, 2n)."""
+def _process_noise(dt: np.ndarray, density: float | np.ndarray, n: int) -> np.ndarray:
+    """Q(dt) = q [[dt³/3, dt²/2], [dt²/2, dt]] ⊗ I_n per slot, (m, 2n, 2n); q a float or
+    one per slot (m,)."""
+    density = np.asarray(density, dtype=float)
+    if density.ndim:  # one density per slot
+        density = density[:, None, None]
     blocks = density * np.stack(
         [np.stack([dt**3 / 3.0, dt**2 / 2.0], -1), np.stack([dt**2 / 2.0, dt], -1)], -2
     )
     return np.kron(blocks, np.eye(n))
 
 
-def track_record_size(dimension: int) -> int:
-    """Length of one slot's record in :meth:`TrackTable.to_vector`."""
+def track_record_size(dimension: int, window: int = 0) -> int:
+    """Length of one slot's record in :meth:`TrackTable.to_vector`; `window` W > 0 adds the
+    consistency fields (scale, NIS count, last NIS, test, W NIS values)."""
     d = 2 * dimension
-    return d + d * d + 2
+    return d + d * d + 2 + (4 + window if window else 0)
 
 
 @dataclass(frozen=True)
@@ -155,6 +178,13 @@ class TrackTable:
         detection_time: (m,) stamp of the last detection consumed, = the posterior's time
             (s; −inf: none yet).
         active: (m,) bool, whether the slot holds a track.
+        scale: (m,) process-noise scale s of each track (:mod:`stt_drake.core.consistency`;
+            None: an unmonitored tracker, as are the four below).
+        nis_count: (m,) corrections since the track's birth.
+        nis: (m,) the NIS ν of the last correction (0 before one).
+        test: (m,) the window test at the last correction: +1 above its interval
+            (overconfident), −1 below, 0 inside.
+        nis_window: (m, W) the last W NIS values (a ring indexed by count mod W).
 
     An inactive slot's state and covariance are placeholders.
     """
@@ -163,42 +193,123 @@ class TrackTable:
     covariance: np.ndarray
     detection_time: np.ndarray
     active: np.ndarray
+    scale: np.ndarray | None = None
+    nis_count: np.ndarray | None = None
+    nis: np.ndarray | None = None
+    test: np.ndarray | None = None
+    nis_window: np.ndarray | None = None
+
+    @property
+    def window(self) -> int:
+        """W (0: unmonitored)."""
+        return 0 if self.nis_window is None else self.nis_window.shape[1]
 
     @classmethod
-    def empty(cls, count: int, dimension: int) -> TrackTable:
-        """No track: zero means, identity covariances, no detection consumed."""
+    def empty(cls, count: int, dimension: int, window: int = 0) -> TrackTable:
+        """No track: zero means, identity covariances, no detection consumed (and, with
+        `window` > 0, scale 1 and no NIS)."""
         d = 2 * dimension
+        monitored = {}
+        if window:
+            monitored = {
+                "scale": np.ones(count),
+                "nis_count": np.zeros(count),
+                "nis": np.zeros(count),
+                "test": np.zeros(count),
+                "nis_window": np.zeros((count, window)),
+            }
         return cls(
             state=np.zeros((count, d)),
             covariance=np.broadcast_to(np.eye(d), (count, d, d)).copy(),
             detection_time=np.full(count, -np.inf),
             active=np.zeros(count, dtype=bool),
+            **monitored,
         )
 
     def to_vector(self) -> np.ndarray:
         """Slot-major records ``[state (2n), covariance ((2n)², row-major), detection_time,
-        active (1.0/0.0)]``."""
+        active (1.0/0.0)]``, monitored: then ``[scale, nis_count, nis, test, nis_window (W)]``."""
         count, d = self.state.shape
-        return np.column_stack(
-            [
-                self.state,
-                self.covariance.reshape(count, d * d),
-                self.detection_time,
-                self.active.astype(float),
-            ]
-        ).ravel()
+        columns = [
+            self.state,
+            self.covariance.reshape(count, d * d),
+            self.detection_time,
+            self.active.astype(float),
+        ]
+        if self.window:
+            columns += [self.scale, self.nis_count, self.nis, self.test, self.nis_window]
+        return np.column_stack(columns).ravel()
 
     @classmethod
-    def from_vector(cls, vector: np.ndarray, dimension: int) -> TrackTable:
-        """Unpack :meth:`to_vector`'s layout."""
+    def from_vector(cls, vector: np.ndarray, dimension: int, window: int = 0) -> TrackTable:
+        """Unpack :meth:`to_vector`'s layout (`window`: the W it was packed with)."""
         d = 2 * dimension
-        table = np.asarray(vector, dtype=float).reshape(-1, track_record_size(dimension))
+        table = np.asarray(vector, dtype=float).reshape(-1, track_record_size(dimension, window))
+        base = d + d * d
+        monitored = {}
+        if window:
+            monitored = {
+                "scale": table[:, base + 2],
+                "nis_count": table[:, base + 3],
+                "nis": table[:, base + 4],
+                "test": table[:, base + 5],
+                "nis_window": table[:, base + 6 :],
+            }
         return cls(
             state=table[:, :d],
-            covariance=table[:, d : d + d * d].reshape(-1, d, d),
-            detection_time=table[:, -2],
-            active=table[:, -1] > 0.5,
+            covariance=table[:, d:base].reshape(-1, d, d),
+            detection_time=table[:, base],
+            active=table[:, base + 1] > 0.5,
+            **monitored,
         )
+
+
+def monitored_update(
+    tracks: TrackTable,
+    rows: np.ndarray,
+    dt: np.ndarray,
+    z: np.ndarray,
+    density: float,
+    noise_covariance: np.ndarray,
+    adaptation: Adaptation,
+) -> tuple[np.ndarray, ...]:
+    """The update of slots `rows` with their NIS, window test and adaptive noise
+    (:mod:`stt_drake.core.consistency`); the compiled kernel unless numpy is selected.
+
+    Returns:
+        (state, covariance, scale, nis_window, nis_count, nis, test) of those rows.
+    """
+    n = z.shape[1]
+    base = adaptation.base_density(density)
+    count = int(np.count_nonzero(rows))
+
+    def pick(values: np.ndarray) -> np.ndarray:  # every row: no copy (the kernel copies)
+        return values if count == len(rows) else values[rows]
+
+    arguments = (
+        pick(tracks.state),
+        pick(tracks.covariance),
+        _per_slot(dt, count),
+        z,
+        float(base),
+        noise_covariance,
+        pick(tracks.scale),
+        pick(tracks.nis_window),
+        pick(tracks.nis_count),
+    )
+    max_scale = adaptation.max_scale(density)
+    if backend.compiled("track_update", n) is not None:
+        kernel = importlib.import_module("stt_drake.core._tracking").track_update_monitored
+        return kernel(
+            *arguments,
+            adaptation.lower,
+            adaptation.upper,
+            float(adaptation.step_gain),
+            float(adaptation.step_cap),
+            float(adaptation.relax),
+            float(max_scale),
+        )
+    return monitored_update_numpy(*arguments, adaptation, max_scale)
 
 
 @dataclass(frozen=True)
@@ -212,6 +323,9 @@ class KalmanTracker:
         initial_velocity_sigma: standard deviation of a new track's velocity (m/s).
         track_timeout: seconds without a detection after which a track is lost; it should
             exceed the sensor period plus its latency plus the tracker period.
+        adaptation: the NIS test and adaptive process noise
+            (:class:`stt_drake.core.consistency.Adaptation`); None: neither, the tracks
+            unmonitored (a shorter record).
     """
 
     dimension: int
@@ -219,12 +333,38 @@ class KalmanTracker:
     noise_covariance: np.ndarray
     initial_velocity_sigma: float
     track_timeout: float
+    adaptation: Adaptation | None = None
+
+    @property
+    def window(self) -> int:
+        """W of the track records (0: unmonitored)."""
+        return 0 if self.adaptation is None else self.adaptation.window
+
+    @property
+    def record_size(self) -> int:
+        """One slot's record length (:func:`track_record_size`)."""
+        return track_record_size(self.dimension, self.window)
+
+    def empty(self, count: int) -> TrackTable:
+        """`count` slots without a track, in this tracker's record layout."""
+        return TrackTable.empty(count, self.dimension, self.window)
+
+    def unpack(self, vector: np.ndarray) -> TrackTable:
+        """:meth:`TrackTable.from_vector` in this tracker's record layout."""
+        return TrackTable.from_vector(vector, self.dimension, self.window)
+
+    def densities(self, tracks: TrackTable) -> float | np.ndarray:
+        """The process density each track predicts with (m²/s³): q, or q_base·s per slot."""
+        if self.adaptation is None:
+            return self.process_density
+        return self.adaptation.base_density(self.process_density) * tracks.scale
 
     def step(self, tracks: TrackTable, detections: Detections, t: float) -> TrackTable:
         """The tracks at time t (s) after consuming `detections`: a slot detected with a stamp
         later than its last one is corrected (predicted to the stamp first) if its track is
         alive at that stamp, else born; a slot whose last detection is more than
-        `track_timeout` before t is lost."""
+        `track_timeout` before t is lost. Monitored, a correction also takes the NIS, runs
+        the window test and adapts the scale; a birth resets them."""
         last, stamp = tracks.detection_time, detections.stamp
         new = detections.detected & (stamp > last)
         alive = tracks.active & (stamp <= last + self.track_timeout)
@@ -232,32 +372,61 @@ class KalmanTracker:
         state, covariance = tracks.state.copy(), tracks.covariance.copy()
         z = np.asarray(detections.position, dtype=float)
         r = np.asarray(self.noise_covariance, dtype=float)
+        monitored = {}
+        if self.adaptation is not None:
+            monitored = {
+                name: getattr(tracks, name).copy()
+                for name in ("scale", "nis_count", "nis", "test", "nis_window")
+            }
         if corrected.any():
-            state[corrected], covariance[corrected] = update(
-                state[corrected],
-                covariance[corrected],
-                stamp[corrected] - last[corrected],
-                z[corrected],
-                self.process_density,
-                r,
-            )
+            dt = stamp[corrected] - last[corrected]
+            if self.adaptation is None:
+                state[corrected], covariance[corrected] = update(
+                    state[corrected],
+                    covariance[corrected],
+                    dt,
+                    z[corrected],
+                    self.process_density,
+                    r,
+                )
+            else:
+                result = monitored_update(
+                    tracks,
+                    corrected,
+                    dt,
+                    z[corrected],
+                    self.process_density,
+                    r,
+                    self.adaptation,
+                )
+                state[corrected], covariance[corrected] = result[0], result[1]
+                for name, value in zip(
+                    ("scale", "nis_window", "nis_count", "nis", "test"), result[2:], strict=True
+                ):
+                    monitored[name][corrected] = value
         if born.any():
             state[born], covariance[born] = birth(z[born], r, self.initial_velocity_sigma)
+            if monitored:
+                monitored["scale"][born] = 1.0
+                for name in ("nis_count", "nis", "test", "nis_window"):
+                    monitored[name][born] = 0.0
         detection_time = np.where(new, stamp, last)
         return TrackTable(
             state=state,
             covariance=covariance,
             detection_time=detection_time,
             active=(tracks.active | new) & (t <= detection_time + self.track_timeout),
+            **monitored,
         )
 
     def belief(self, tracks: TrackTable, t: float) -> GaussianBelief:
         """The belief at time t (s): :func:`predicted_position` from each active slot's
-        posterior; inactive slots hold mean 0 and covariance I (placeholders)."""
+        posterior (with its own density, :meth:`densities`); inactive slots hold mean 0
+        and covariance I (placeholders)."""
         active = tracks.active
         dt = np.where(active, t - tracks.detection_time, 0.0)
         mean, covariance = predicted_position(
-            tracks.state, tracks.covariance, dt, self.process_density
+            tracks.state, tracks.covariance, dt, self.densities(tracks)
         )
         mean[~active] = 0.0
         covariance[~active] = np.eye(self.dimension)
@@ -282,4 +451,3 @@ def blend_beliefs(old: GaussianBelief, new: GaussianBelief, weight: float) -> Ga
         + w * (1.0 - w) * jump[:, :, None] * jump[:, None, :]
     )
     return GaussianBelief(mean=mean, covariance=covariance, active=new.active.copy())
-

@@ -16,7 +16,7 @@ from stt_drake.core.guide import (
 )
 from stt_drake.core.guide import attraction_point as route_point
 from stt_drake.core.progress import StallDetector, StallRule
-from stt_drake.core.tracking import KalmanTracker, TrackTable, track_record_size
+from stt_drake.core.tracking import KalmanTracker
 
 #: Stalled regions the guide remembers at once (the oldest is dropped).
 MAX_AVOIDED = 8
@@ -82,7 +82,7 @@ class TubeGuide(LeafSystem):
         self._tube_port = self.DeclareVectorInputPort("tube", n + 1)
         self._belief_port = self.DeclareVectorInputPort("obstacle_belief", belief_size(count, n))
         self._tracks_port = (
-            self.DeclareVectorInputPort("tracks", count * track_record_size(n))
+            self.DeclareVectorInputPort("tracks", count * tracker.record_size)
             if tracker is not None
             else None
         )
@@ -122,7 +122,7 @@ class TubeGuide(LeafSystem):
         times = t + self._settings.knots
         if self._tracker is None:
             return self._forecast(times)
-        tracks = TrackTable.from_vector(self._tracks_port.Eval(context), self._n)
+        tracks = self._tracker.unpack(self._tracks_port.Eval(context))
         return tracked_forecast(self._tracker, tracks, times)
 
     def _update(self, context: Context, discrete_state: DiscreteValues) -> EventStatus:

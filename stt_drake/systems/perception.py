@@ -24,6 +24,7 @@ import numpy as np
 from pydrake.systems.framework import BasicVector, Context, DiscreteValues, LeafSystem
 
 from stt_drake.core.belief import GaussianBelief, belief_size
+from stt_drake.core.consistency import CONSISTENCY_FIELDS, consistency_stats
 from stt_drake.core.motion import Motion, MotionTable
 from stt_drake.core.perception import Detections, SensorModel, TruthPath, detection_size
 from stt_drake.core.tracking import KalmanTracker, TrackTable, blend_beliefs
@@ -35,7 +36,9 @@ _PERIOD_SLACK = 1e-9
 class TrueObstacles(LeafSystem):
     """Output `true_obstacle_position` (m·n, obstacle-major): each obstacle's true centre
     O_j(t) = μ_j(t) + δ_j(t), its scenario motion plus the drawn deviation `truth`
-    (:mod:`stt_drake.core.perception`). A function of time only."""
+    (:mod:`stt_drake.core.perception`). A function of time only. An obstacle that does not
+    exist at t (a recorded track outside its span) is NaN there: no sensor detects it
+    (a NaN distance is never within range) and it hits nothing."""
 
     def __init__(self, motions: Sequence[Motion], dimension: int, truth: TruthPath) -> None:
         super().__init__()
@@ -55,8 +58,11 @@ class TrueObstacles(LeafSystem):
         )
 
     def positions(self, t: float) -> np.ndarray:
-        """(m, n) true centres at time t (s), metres."""
-        return self._motions.positions(t) + self._truth.deviation(t)
+        """(m, n) true centres at time t (s), metres (NaN rows: absent obstacles)."""
+        positions = self._motions.positions(t) + self._truth.deviation(t)
+        if self._motions.bounded.size:
+            positions[~self._motions.active(t)] = np.nan
+        return positions
 
     def _calc_positions(self, context: Context, output: BasicVector) -> None:
         output.SetFromVector(self.positions(context.get_time()).ravel())
@@ -87,7 +93,7 @@ class ObstacleSensor(LeafSystem):
     stores. So at latency 0 a tracker updating at k·period consumes sample k at k·period.
     """
 
-    def __init__(self, model: SensorModel, latency: float = 0.0) -> None:
+    def __init__(self, model: SensorModel, latency: float = 0.0, presence: bool = False) -> None:
         super().__init__()
         if not 0.0 <= latency < math.inf:
             raise ValueError(f"ObstacleSensor: latency must be finite and >= 0 s, got {latency}")
@@ -96,6 +102,11 @@ class ObstacleSensor(LeafSystem):
         count, n = model.count, model.dimension
         self._robot_port = self.DeclareVectorInputPort("robot_position", n)
         self._truth_port = self.DeclareVectorInputPort("true_obstacle_position", count * n)
+        # With `presence`: input `obstacle_present` (m, 1.0/0.0); an absent slot (a
+        # pedestrian not in the scene, CrowdSimulator.pedestrian_active) is never detected.
+        self._present_port = (
+            self.DeclareVectorInputPort("obstacle_present", count) if presence else None
+        )
         self._depth = ring_depth(latency, model.period)
         empty = Detections.none(count, n).to_vector()
         self._ring = self.DeclareDiscreteState(np.tile(empty, self._depth))
@@ -133,6 +144,10 @@ class ObstacleSensor(LeafSystem):
         detections = self._model.measure(
             index, self._truth_port.Eval(context), self._robot_port.Eval(context)
         )
+        if self._present_port is not None:
+            absent = self._present_port.Eval(context) <= 0.5
+            detections.detected[absent] = False
+            detections.position[absent] = 0.0
         return detections.to_vector()
 
     def _measure(self, context: Context, discrete_state: DiscreteValues) -> None:
@@ -188,7 +203,10 @@ class ObstacleTracker(LeafSystem):
 
     Known data association (slot j is obstacle j); the slot count `count` is fixed at build.
     Discrete state: :class:`stt_drake.core.tracking.TrackTable`, per slot ``[KF state (2n),
-    covariance ((2n)²), detection time (= the posterior's time, s), active]``.
+    covariance ((2n)²), detection time (= the posterior's time, s), active]``, then for a
+    monitored tracker (``tracker.adaptation``) ``[noise scale, corrections, last NIS, window
+    test, the last W NIS values]`` (:meth:`KalmanTracker.unpack`), so the system is a pure
+    function of its discrete state.
 
     Output `obstacle_belief` (:class:`stt_drake.core.belief.GaussianBelief` layout, per slot
     ``[mean (n), covariance (n²), active]``): each active slot's posterior predicted in
@@ -202,6 +220,10 @@ class ObstacleTracker(LeafSystem):
     belief the tube reads is continuous in time and its mean moves at most |Δμ|/τ faster
     than the tracks'); τ = 0 publishes the jump, which the tube meets with its recovery
     behaviour (:mod:`stt_drake.core.tube`). Births and losses are never blended.
+
+    Output `consistency` (m × :data:`~stt_drake.core.consistency.CONSISTENCY_FIELDS`,
+    slot-major): each track's running NIS statistics
+    (:func:`stt_drake.core.consistency.consistency_stats`; zeros for an unmonitored tracker).
 
     Output `tracks`: the track table itself (:meth:`TrackTable.to_vector`), for a system
     that predicts further ahead (a guide). Output `belief_updates` (m): per slot, how many
@@ -229,14 +251,18 @@ class ObstacleTracker(LeafSystem):
         self._tracker = tracker
         n = tracker.dimension
         self._detections_port = self.DeclareVectorInputPort("detections", detection_size(count, n))
-        self._tracks = self.DeclareDiscreteState(TrackTable.empty(count, n).to_vector())
+        self._tracks = self.DeclareDiscreteState(tracker.empty(count).to_vector())
         self._updates = self.DeclareDiscreteState(np.zeros(count))
         # The tracks before the last update, and its time (the blend's start).
-        self._previous = self.DeclareDiscreteState(TrackTable.empty(count, n).to_vector())
+        self._previous = self.DeclareDiscreteState(tracker.empty(count).to_vector())
+        stats = np.zeros((count, CONSISTENCY_FIELDS))
+        stats[:, [3, 5]] = np.nan  # no event yet, not failing
+        self._consistency = self.DeclareDiscreteState(stats.ravel())
         self._update_time = self.DeclareDiscreteState([-np.inf])
         self.DeclarePeriodicDiscreteUpdateEvent(period, offset, self._update)
         self.DeclareStateOutputPort("belief_updates", self._updates)
         self.DeclareStateOutputPort("tracks", self._tracks)
+        self.DeclareStateOutputPort("consistency", self._consistency)
         self.DeclareVectorOutputPort(
             "obstacle_belief",
             belief_size(count, n),
@@ -251,16 +277,22 @@ class ObstacleTracker(LeafSystem):
 
     def tracks(self, context: Context) -> TrackTable:
         """The track table held in `context` (this system's context)."""
-        vector = context.get_discrete_state(self._tracks).value()
-        return TrackTable.from_vector(vector, self._tracker.dimension)
+        return self._tracker.unpack(context.get_discrete_state(self._tracks).value())
 
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
         detections = Detections.from_vector(
             self._detections_port.Eval(context), self._tracker.dimension
         )
         before = context.get_discrete_state(self._tracks).value()
-        after = self._tracker.step(self.tracks(context), detections, context.get_time())
+        tracks = self.tracks(context)
+        after = self._tracker.step(tracks, detections, context.get_time())
         vector = after.to_vector()
+        if after.window:
+            stats = context.get_discrete_state(self._consistency).value()
+            stats = consistency_stats(
+                stats.reshape(len(after.active), -1), tracks, after, context.get_time()
+            )
+            discrete_state.set_value(self._consistency, stats.ravel())
         changed = np.any((vector != before).reshape(len(after.active), -1), axis=1)
         discrete_state.set_value(self._tracks, vector)
         counts = context.get_discrete_state(self._updates).value() + changed
@@ -275,8 +307,7 @@ class ObstacleTracker(LeafSystem):
         elapsed = t - context.get_discrete_state(self._update_time).value()[0]
         if elapsed >= self._blend_time:
             return belief
-        vector = context.get_discrete_state(self._previous).value()
-        previous = TrackTable.from_vector(vector, self._tracker.dimension)
+        previous = self._tracker.unpack(context.get_discrete_state(self._previous).value())
         old = self._tracker.belief(previous, t)
         return blend_beliefs(old, belief, elapsed / self._blend_time)
 
