@@ -12,6 +12,8 @@ $(STAMP): pyproject.toml requirements.lock
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade -c requirements.lock pip
 	$(BIN)/python -m pip install --quiet -c requirements.lock -e '.[test]'
+	# the crowd extra without JuPedSim's visualizer (PySide6, vtk: ~1.2 GB it never imports)
+	$(BIN)/python -m pip install --quiet --no-deps -c requirements.lock jupedsim shapely Deprecated wrapt
 	touch $(STAMP)
 
 install: $(STAMP)

@@ -16,6 +16,7 @@ from pydrake.systems.primitives import LogVectorOutput, MatrixGain, Sine, Vector
 from stt_drake.build.feasibility import rate_bounds
 from stt_drake.build.guide import add_guide
 from stt_drake.build.laws import make_arm_law, make_funnel_controller, make_tube_law
+from stt_drake.build.load import crowd_setup
 from stt_drake.build.stt import AddStt
 from stt_drake.config import FrankaArm as FrankaArmConfig
 from stt_drake.config import OmniRobot as OmniRobotConfig
@@ -31,6 +32,7 @@ from stt_drake.core.belief import ObstacleTask
 from stt_drake.core.perception import SensorModel, draw_truth_deviation
 from stt_drake.core.tracking import KalmanTracker
 from stt_drake.systems.belief_source import ObstacleBeliefSource
+from stt_drake.systems.crowd import CrowdSimulator
 from stt_drake.systems.monitor import InvariantMonitor
 from stt_drake.systems.perception import ObstacleSensor, ObstacleTracker, TrueObstacles
 from stt_drake.systems.plants.franka import (
@@ -314,13 +316,27 @@ def add_loggers(
 class PerceptionHandles:
     """The perception chain :func:`add_perception` added."""
 
-    truth: TrueObstacles
+    truth: TrueObstacles | CrowdSimulator
     sensor: ObstacleSensor
     tracker: ObstacleTracker
 
 
 #: Independent random streams of one scenario seed (numpy SeedSequence spawn keys).
 TRUTH_STREAM, SENSOR_STREAM = 1, 2
+
+
+def add_crowd(
+    builder: DiagramBuilder, scenario: Scenario, robot_output: OutputPort
+) -> CrowdSimulator:
+    """The interactive crowd of `scenario.crowd` (:class:`CrowdSimulator`, named "crowd"),
+    the robot's position (`robot_output`) connected to it; its slots are the scenario's
+    obstacles (:func:`stt_drake.build.load.crowd_obstacles`, the same draw)."""
+    config = scenario.crowd
+    crowd = builder.AddNamedSystem(
+        "crowd", CrowdSimulator(crowd_setup(scenario), config.robot_radius, config.period)
+    )
+    builder.Connect(robot_output, crowd.GetInputPort("robot_position"))
+    return crowd
 
 
 def add_perception(
@@ -331,13 +347,17 @@ def add_perception(
     config = scenario.perception
     n, count = scenario.dimension, len(scenario.obstacles)
     horizon = scenario.duration + config.latency + config.sensor_period
-    truth_draws = np.random.default_rng([scenario.seed, TRUTH_STREAM])
-    path = draw_truth_deviation(
-        count, n, config.process_noise_density, config.truth_period, horizon, truth_draws
-    )
-    truth = builder.AddNamedSystem(
-        "true_obstacles", TrueObstacles([o.motion for o in scenario.obstacles], n, path)
-    )
+    if scenario.crowd is not None and scenario.crowd.interactive:  # the pedestrians, who
+        # see the robot, are the truth
+        truth = add_crowd(builder, scenario, robot_output)
+    else:
+        truth_draws = np.random.default_rng([scenario.seed, TRUTH_STREAM])
+        path = draw_truth_deviation(
+            count, n, config.process_noise_density, config.truth_period, horizon, truth_draws
+        )
+        truth = builder.AddNamedSystem(
+            "true_obstacles", TrueObstacles([o.motion for o in scenario.obstacles], n, path)
+        )
     model = SensorModel(
         count,
         n,
@@ -348,13 +368,21 @@ def add_perception(
         config.sensing_range or np.inf,
         np.random.default_rng([scenario.seed, SENSOR_STREAM]),
     )
-    sensor = builder.AddNamedSystem("obstacle_sensor", ObstacleSensor(model, config.latency))
+    crowd = isinstance(truth, CrowdSimulator)
+    sensor = builder.AddNamedSystem(
+        "obstacle_sensor", ObstacleSensor(model, config.latency, presence=crowd)
+    )
+    if crowd:  # a pedestrian out of the scene is not detected
+        builder.Connect(
+            truth.GetOutputPort("pedestrian_active"), sensor.GetInputPort("obstacle_present")
+        )
     tracker = KalmanTracker(
         n,
         config.tracker_density(),
         config.tracker_noise(n),
         config.initial_velocity_sigma,
         config.track_timeout,
+        config.adaptation(n),
     )
     tracking = builder.AddNamedSystem(
         "obstacle_tracker",
@@ -362,7 +390,10 @@ def add_perception(
             tracker, count, config.sensor_period, config.blend_time, offset=config.latency
         ),
     )
-    builder.Connect(truth.get_output_port(), sensor.GetInputPort("true_obstacle_position"))
+    builder.Connect(
+        truth.GetOutputPort("true_obstacle_position"),
+        sensor.GetInputPort("true_obstacle_position"),
+    )
     builder.Connect(robot_output, sensor.GetInputPort("robot_position"))
     builder.Connect(sensor.GetOutputPort("detections"), tracking.GetInputPort("detections"))
     return PerceptionHandles(truth, sensor, tracking)
@@ -457,6 +488,9 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> SttDiag
     if perceived is not None:  # the truth the end-to-end check needs, and the corrections
         extra["true_obstacle_position"] = perceived.truth.GetOutputPort("true_obstacle_position")
         extra["belief_updates"] = perceived.tracker.GetOutputPort("belief_updates")
+        if isinstance(perceived.truth, CrowdSimulator):
+            extra["pedestrian_active"] = perceived.truth.GetOutputPort("pedestrian_active")
+        extra["tracker_consistency"] = perceived.tracker.GetOutputPort("consistency")
     task_target = None
     if plant.sequencer is not None:
         builder.Connect(stt.tube, plant.sequencer.GetInputPort("tube"))

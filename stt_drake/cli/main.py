@@ -38,6 +38,7 @@ SUBCOMMAND_MODULES: tuple[str, ...] = (
     "stt_drake.cli.compare",
     "stt_drake.cli.diagram",
     "stt_drake.cli.bench",
+    "stt_drake.cli.crowd",
     "stt_drake.cli.list",
 )
 

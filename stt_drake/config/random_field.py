@@ -21,6 +21,12 @@ def has_random_field(spec: RandomObstacles | None) -> bool:
     return spec is not None and (spec.count > 0 or bool(spec.count_range))
 
 
+def draws_obstacles(scenario: Scenario) -> bool:
+    """Whether each seed draws the scenario's obstacles afresh: a random field, or a crowd
+    (its pedestrians are drawn from the crowd's and the scenario's seeds)."""
+    return has_random_field(scenario.random_obstacles) or scenario.crowd is not None
+
+
 def expand_random_obstacles(scenario: Scenario) -> None:
     """Append the `random_obstacles` draws to `scenario.obstacles`.
 

@@ -13,6 +13,7 @@ import numpy as np
 from pydrake.systems.analysis import SimulatorConfig
 
 from stt_drake.core.belief import ObstacleBelief, obstacle_belief
+from stt_drake.core.consistency import Adaptation, density_bounds
 from stt_drake.core.motion import ConstantVelocity, CovarianceSchedule, Motion, SigmaSchedule
 from stt_drake.core.tube import default_nu
 
@@ -263,7 +264,16 @@ class Perception:
     moves to the new track over `blend_time` seconds (≤ sensor_period; 0: it jumps, and the
     tube recovers from the jump). `full_covariance`: the tube uses each
     track's Σ exactly (else σ² = λ_max(Σ), exact only for isotropic noise models).
-    Draws come from the scenario's `seed`. At least one obstacle is needed; what the chain
+    Consistency (:mod:`stt_drake.core.consistency`): at each correction the tracker takes the
+    track's normalised innovation squared ν = yᵀS⁻¹y and tests the sum of the last
+    `nis_window` values (W ≥ 1) against the two-sided χ² interval of W·n degrees of freedom
+    with probability `nis_confidence` (in (0, 1)); a run reports per track the NIS mean,
+    the episodes above the interval (the track overconfident) and the calibration against
+    the true centres, and warns when a track was inconsistent. With `adaptive` (the
+    default) each track's white-acceleration density is scaled up when its NIS is high
+    and relaxes back to the model's own when it is consistent again (a model density of 0
+    is scaled from a small floor); `adaptive: false` is the constant-velocity filter
+    exactly. Draws come from the scenario's `seed`. At least one obstacle is needed; what the chain
     draws and holds counts in the memory budget (:mod:`stt_drake.config.perception_budget`)."""
 
     process_noise_density: float = 0.0
@@ -281,6 +291,9 @@ class Perception:
     track_timeout: float = 1.0
     blend_time: float = 0.1
     full_covariance: bool = True
+    adaptive: bool = True
+    nis_window: int = 10
+    nis_confidence: float = 0.95
 
     def noise(self, dimension: int) -> np.ndarray:
         """The sensor's true noise covariance R (n×n, m²)."""
@@ -295,6 +308,20 @@ class Perception:
         if self.tracker_noise_sigma is not None:
             return self.tracker_noise_sigma**2 * np.eye(dimension)
         return self.noise(dimension)
+
+    def adaptation(self, dimension: int) -> Adaptation:
+        """The tracker's NIS test and adaptive process noise (`adaptive`, `nis_window`,
+        `nis_confidence`; the density range from the tracker's noise and the sensor period,
+        :func:`stt_drake.core.consistency.density_bounds`)."""
+        floor, ceiling = density_bounds(self.tracker_noise(dimension), self.sensor_period)
+        return Adaptation(
+            dimension,
+            window=self.nis_window,
+            confidence=self.nis_confidence,
+            adaptive=self.adaptive,
+            density_floor=floor,
+            density_ceiling=ceiling,
+        )
 
     def tracker_density(self) -> float:
         """The process density the tracker assumes (m²/s³; default: the true one)."""
@@ -338,6 +365,45 @@ class GuideConfig:
     stall_progress: float = 0.0
 
 
+@dataclass
+class CrowdConfig:
+    """A crowd of JuPedSim pedestrians (the `crowd` extra) as the obstacles, drawn afresh
+    for every seed (a campaign's runs, ``compare --draws``):
+
+    * `interactive: true`: the crowd steps inside the Diagram
+      (:class:`stt_drake.systems.crowd.CrowdSimulator`) as the obstacles' truth, in front
+      of the perception chain's sensor (a `perception:` section is required: the belief
+      comes from the tracker), and the pedestrians walk around the robot;
+    * `interactive: false`: the crowd is simulated at load without the robot, and each
+      pedestrian is a recorded track over its time in the scene (as if read from a track
+      file of ``stt-drake crowd``): the scripted belief N(track, sigma²I), or a tracker's
+      with `perception:`. Every controller of ``stt-drake compare`` can run it.
+
+    `scene`: ``crossing``, ``circle``, ``corridor`` or ``bidirectional``
+    (:mod:`stt_drake.crowd.scenes`), with `pedestrians` N, drawn from (`seed`, the
+    scenario's seed), desired speeds uniform in `speed_range` (m/s), in `area`
+    [x_min, y_min, x_max, y_max] (m; empty: the scene's default), agents of `radius` (m).
+    The pedestrians avoid the robot as a disc of `robot_radius` (m; 0: they do not see it);
+    the crowd is stepped (or sampled) every `period` seconds. The N pedestrians are the
+    scenario's obstacles: N slots with r_o = `radius` + `robot_radius` (a point robot's
+    collision disc: the pedestrian's grown by the robot's), the standard deviation `sigma`
+    (m; interactive: of the load-time prior only), `epsilon`, `p_d`; `sigma`, `epsilon`
+    and `p_d` are required."""
+
+    scene: str = "crossing"
+    pedestrians: int = 20
+    seed: int = 0
+    interactive: bool = True
+    area: list[float] = field(default_factory=list)
+    radius: float = 0.2
+    robot_radius: float = 0.3
+    speed_range: list[float] = field(default_factory=lambda: [1.0, 1.4])
+    sigma: float | None = None
+    epsilon: float | None = None
+    p_d: float | None = None
+    period: float = 0.05
+
+
 def _default_simulator_config() -> SimulatorConfig:
     return SimulatorConfig(
         integration_scheme="runge_kutta3",
@@ -373,6 +439,7 @@ class Scenario:
     max_memory_gb: float = 0.0
     perception: Perception | None = None
     guide: GuideConfig | None = None
+    crowd: CrowdConfig | None = None
 
     @property
     def dimension(self) -> int:
