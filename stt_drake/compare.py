@@ -27,7 +27,14 @@ closed loop has c = y and r = 0, and only the campaign's output check is reporte
   system's `control` port evaluated on the logged samples (Drake's port overhead included);
 * `qp_infeasible_count`: the CBF's updates whose hard QP was infeasible (null otherwise);
 * `model_error`: null, or the name of the perturbation of the plant's true parameters
-  (:data:`MODEL_ERRORS`) the row's simulations ran with (``--model-error``).
+  (:data:`MODEL_ERRORS`) the row's simulations ran with (``--model-error``);
+* against the TRUE obstacles of the simulation (:mod:`stt_drake.campaign.crowd_metrics`: the
+  logged ``true_obstacle_position`` with perception, else the scripted means):
+  `collision_rate` (1.0 if ‖y − O_j‖ < r_o_j at some logged time, else 0.0),
+  `min_distance_m` (min of ‖y − O_j‖ − r_o_j), `comfort_violation_s` (seconds closer than
+  the comfort distance, ``--comfort-distance``) and `obstacle_collision_frequency` (per
+  obstacle, against 1 − ε_j; :func:`~stt_drake.campaign.crowd_metrics.obstacle_frequencies`);
+  the document's `comfort_distance_m` is the comfort distance used.
 
 Plus ``comparison.md`` (the table) and ``comparison.png`` (paths and metrics). The out
 folder is locked for the whole comparison and refused when it already holds one, unless
@@ -55,13 +62,13 @@ from stt_drake.build.baselines import (
 )
 from stt_drake.build.laws import make_funnel_controller, make_tube_law
 from stt_drake.campaign import (
-    CLOSED_LOOP_FILE,
     CampaignError,
     CampaignSpec,
     ClosedLoop,
     run_campaign,
 )
 from stt_drake.campaign.backends import check_scheduler_address
+from stt_drake.campaign.crowd_metrics import crowd_record, obstacle_frequencies
 from stt_drake.campaign.spec import check_runs
 from stt_drake.compare_checks import (
     COMPARISON_FILE,
@@ -69,9 +76,16 @@ from stt_drake.compare_checks import (
     CompareError,
     check_common,
     check_out,
+    check_resumed_loop,
     comparison_folder,
 )
 from stt_drake.config import GuideConfig, OmniRobot, Quadrotor, Scenario
+from stt_drake.core.crowd_metrics import (
+    DEFAULT_COMFORT_DISTANCE,
+    check_comfort_distance,
+    output_reach_time,
+)
+from stt_drake.core.rules import RuleError
 from stt_drake.core.statistics import CERTIFIED
 from stt_drake.run import scenario_simulator, simulate
 from stt_drake.runlog import RunLog, write_json
@@ -94,6 +108,10 @@ ROW_KEYS = (
     "min_clearance_m",
     "step_us_median",
     "qp_infeasible_count",
+    "collision_rate",
+    "min_distance_m",
+    "comfort_violation_s",
+    "obstacle_collision_frequency",
 )
 #: The plant-parameter perturbations of ``--model-error``, per plant config type:
 #: (name, {field: factor}) applied to the scenario's true values.
@@ -120,18 +138,6 @@ class ControllerRun:
     finished: bool
     step_us: float
     qp_infeasible_count: int | None = None
-
-
-def output_reach_time(
-    t: np.ndarray, output: np.ndarray, target: np.ndarray, target_set_radius: float
-) -> float | None:
-    """The first sample time from which ‖y − η‖ ≤ R_T holds to the last sample; None if
-    the output is outside the target set at the end."""
-    inside = np.linalg.norm(output - target, axis=1) <= target_set_radius
-    if not inside.size or not inside[-1]:
-        return None
-    outside = np.flatnonzero(~inside)
-    return float(t[outside[-1] + 1] if outside.size else t[0])
 
 
 def min_clearance(log: RunLog) -> float:
@@ -248,10 +254,15 @@ def _worst_obstacle(summary: dict[str, Any]) -> dict[str, Any]:
 
 
 def comparison_row(
-    controller: str, run: ControllerRun, campaign: dict[str, Any], model_error: str | None
+    controller: str,
+    run: ControllerRun,
+    campaign: dict[str, Any],
+    model_error: str | None,
+    comfort_distance: float = DEFAULT_COMFORT_DISTANCE,
 ) -> dict[str, Any]:
     """The comparison.json row of one controller (:data:`ROW_KEYS`, module docstring)."""
     log = run.log
+    crowd = crowd_record(log, comfort_distance)
     t_reach = output_reach_time(log.t, log.output, log.target, log.target_set_radius)
     worst = _worst_obstacle(campaign)
     steps = np.linalg.norm(np.diff(log.output, axis=0), axis=1)
@@ -268,6 +279,10 @@ def comparison_row(
         "min_clearance_m": min_clearance(log),
         "step_us_median": run.step_us,
         "qp_infeasible_count": run.qp_infeasible_count,
+        "collision_rate": 1.0 if crowd["collided"] else 0.0,
+        "min_distance_m": crowd["min_distance_m"],
+        "comfort_violation_s": crowd["comfort_violation_s"],
+        "obstacle_collision_frequency": obstacle_frequencies([crowd]),
     }
     return {key: row[key] for key in ROW_KEYS}
 
@@ -280,7 +295,8 @@ def _check_input(
     options: dict[str, Any],
 ) -> None:
     """Refuse bad input before any work (:class:`CompareError`, naming the option);
-    `options`: ``workers``, ``scheduler``, ``model_error``, ``solver``."""
+    `options`: ``workers``, ``scheduler``, ``model_error``, ``solver``,
+    ``comfort_distance``."""
     unknown = [c for c in controllers if c not in CONTROLLERS]
     if not controllers or unknown:
         raise CompareError(
@@ -307,42 +323,15 @@ def _check_input(
             check_scheduler_address(options["scheduler"])
     except CampaignError as error:
         raise CompareError(str(error)) from None
+    try:
+        check_comfort_distance(options["comfort_distance"], "--comfort-distance")
+    except RuleError as error:
+        raise CompareError(str(error)) from None
     if options["solver"] not in SOLVERS:
         raise CompareError(
             f"--solver: must be one of {', '.join(SOLVERS)} (got {options['solver']!r})"
         )
     check_out(out_dir)
-
-
-def same_closed_loop(first: ClosedLoop, second: ClosedLoop) -> bool:
-    """Whether two closed loops hold the same arrays (a resumed campaign must sample
-    against the trajectory it started with)."""
-    arrays = [(getattr(first, k), getattr(second, k)) for k in first.__dataclass_fields__]
-    return all(
-        (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
-        for a, b in arrays
-    )
-
-
-def _check_resumed_loop(folder: Path, loop: ClosedLoop, controller: str) -> None:
-    """Refuse to resume `controller`'s campaign in `folder` against a closed loop other
-    than the one it sampled against (:class:`CompareError`, ``--resume``)."""
-    path = folder / CLOSED_LOOP_FILE
-    if not path.exists():
-        return
-    try:
-        same = same_closed_loop(ClosedLoop.load(path), loop)
-    except (OSError, ValueError, KeyError, TypeError) as error:
-        raise CompareError(
-            f"--resume: {path} is unreadable ({error}), so {controller}'s campaign cannot be "
-            "checked to sample the same closed loop; choose another --out"
-        ) from None
-    if not same:
-        raise CompareError(
-            f"--resume: {controller}'s closed loop, simulated again, differs from the one its "
-            f"campaign in {folder} sampled against (another scenario or code version); "
-            "choose another --out"
-        )
 
 
 def _variants(scenario: Scenario, model_error: bool) -> list[tuple[str | None, Scenario]]:
@@ -373,6 +362,7 @@ def compare(
     solver: str = "osqp",
     progress: bool = False,
     resume: bool = False,
+    comfort_distance: float = DEFAULT_COMFORT_DISTANCE,
 ) -> dict[str, Any]:
     """Compare `controllers` on the scenario file `scenario_path` (module docstring) and
     write comparison.json, comparison.md and comparison.png into `out_dir`; return the
@@ -397,7 +387,8 @@ def compare(
     except ScenarioError as error:
         raise CompareError(f"SCENARIO: bad scenario {path}: {error}") from None
     options = {"workers": workers, "scheduler": scheduler, "model_error": model_error}
-    _check_input(scenario, controllers, runs, out_dir, {**options, "solver": solver})
+    more = {"solver": solver, "comfort_distance": comfort_distance}
+    _check_input(scenario, controllers, runs, out_dir, {**options, **more})
     ordered = [c for c in CONTROLLERS if c in controllers]
     variants = [
         (name, variant, out_dir if name is None else out_dir / "model_error" / _folder_name(name))
@@ -423,7 +414,7 @@ def compare(
                 run = _simulate(variant, controller, solver)
                 loop = ClosedLoop.from_log(run.log)
                 if resume:
-                    _check_resumed_loop(folder / controller, loop, controller)
+                    check_resumed_loop(folder / controller, loop, controller)
                 outcome = run_campaign(
                     CampaignSpec(scenario=str(path), runs=runs),
                     folder / controller,
@@ -433,7 +424,9 @@ def compare(
                     progress=progress,
                     closed_loop=loop,
                 )
-                rows.append(comparison_row(controller, run, outcome.summary, name))
+                rows.append(
+                    comparison_row(controller, run, outcome.summary, name, comfort_distance)
+                )
                 if name is None:
                     figure_runs[controller] = run.log
         document = {
@@ -441,6 +434,7 @@ def compare(
             "scenario_path": str(path),
             "runs": runs,
             "solver": solver,
+            "comfort_distance_m": comfort_distance,
             "controllers": ordered,
             "model_errors": [name for name, _, _ in variants[1:]],
             "rows": rows,
@@ -487,6 +481,9 @@ _COLUMNS = (
     ("min clearance (m)", "min_clearance_m"),
     ("step (µs)", "step_us_median"),
     ("QP infeasible", "qp_infeasible_count"),
+    ("true collision", "collision_rate"),
+    ("min distance (m)", "min_distance_m"),
+    ("comfort violation (s)", "comfort_violation_s"),
 )
 
 

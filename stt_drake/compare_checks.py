@@ -9,7 +9,9 @@ Both comparisons (:mod:`stt_drake.compare`, one scenario and a campaign per cont
   (:func:`~stt_drake.campaign.backends.check_workers`);
 * :func:`comparison_folder`: the out folder locked for the whole comparison (the
   campaigns' lock, :func:`stt_drake.campaign.folder.folder_lock`, on ``DIR/.lock``), and a
-  folder that already holds a comparison refused without ``--resume``, at once.
+  folder that already holds a comparison refused without ``--resume``, at once;
+* :func:`check_resumed_loop`: a resumed campaign must sample against the closed loop it
+  started with (:func:`same_closed_loop`).
 """
 
 from __future__ import annotations
@@ -19,10 +21,12 @@ from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from stt_drake.campaign import CampaignError
+import numpy as np
+
+from stt_drake.campaign import CLOSED_LOOP_FILE, CampaignError, ClosedLoop
 from stt_drake.campaign.backends import check_workers
 from stt_drake.campaign.folder import RUNS_FILE, SPEC_FILE, folder_lock
-from stt_drake.config import has_random_field
+from stt_drake.config import draws_obstacles
 from stt_drake.runlog import unwritable_reason
 
 #: The controllers that are not STT (they read the obstacles' scripted belief).
@@ -40,7 +44,7 @@ def check_common(schema: Any, controllers: Sequence[str], workers: int | None) -
     scenario with a ``perception`` section, and a bad ``--workers``. `schema` is the
     parsed scenario (its ``perception`` field is read)."""
     baselines = [c for c in controllers if c in BASELINE_CONTROLLERS]
-    if not schema.obstacles and not has_random_field(schema.random_obstacles):
+    if not schema.obstacles and not draws_obstacles(schema):
         raise CompareError(
             "scenario.obstacles: compare checks every controller against true obstacles; "
             "the scenario has none (nothing to compare on)"
@@ -94,3 +98,34 @@ def comparison_folder(
             yield
     except CampaignError as error:
         raise CompareError(str(error)) from None
+
+
+def same_closed_loop(first: ClosedLoop, second: ClosedLoop) -> bool:
+    """Whether two closed loops hold the same arrays (a resumed campaign must sample
+    against the trajectory it started with)."""
+    arrays = [(getattr(first, k), getattr(second, k)) for k in first.__dataclass_fields__]
+    return all(
+        (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
+        for a, b in arrays
+    )
+
+
+def check_resumed_loop(folder: Path, loop: ClosedLoop, controller: str) -> None:
+    """Refuse to resume `controller`'s campaign in `folder` against a closed loop other
+    than the one it sampled against (:class:`CompareError`, ``--resume``)."""
+    path = folder / CLOSED_LOOP_FILE
+    if not path.exists():
+        return
+    try:
+        same = same_closed_loop(ClosedLoop.load(path), loop)
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        raise CompareError(
+            f"--resume: {path} is unreadable ({error}), so {controller}'s campaign cannot be "
+            "checked to sample the same closed loop; choose another --out"
+        ) from None
+    if not same:
+        raise CompareError(
+            f"--resume: {controller}'s closed loop, simulated again, differs from the one its "
+            f"campaign in {folder} sampled against (another scenario or code version); "
+            "choose another --out"
+        )

@@ -16,19 +16,30 @@ output reached the target set and stayed, :func:`stt_drake.compare.output_reach_
 :mod:`stt_drake.core.progress` on the logged centre — the output for a baseline — and
 attraction point), `unsafe` (at some logged time the belief's exact probability that the
 output collides with obstacle j exceeds 1 − ε_j: the PrT-RAS task broken, Definition 2.3),
-`t_reach_s`, `path_length_m`, `min_clearance_m` (min of ‖y − μ_j‖ − r_o_j), `step_us`.
+`t_reach_s`, `path_length_m`, `min_clearance_m` (min of ‖y − μ_j‖ − r_o_j), `step_us`;
+and against the draw's TRUE obstacles (:mod:`stt_drake.campaign.crowd_metrics`; without perception
+the scripted means): `collided` (‖y − O_j‖ < r_o_j at some logged time),
+`first_collision_s`, `obstacle_collisions` and `obstacle_epsilon` (per obstacle),
+`min_distance_m` (min of ‖y − O_j‖ − r_o_j) and `comfort_violation_s` (seconds with that
+surface distance below the comfort distance, ``--comfort-distance``,
+:mod:`stt_drake.core.crowd_metrics`).
 
 Each line also holds its ``sha256`` checksum (:func:`stt_drake.campaign.folder.record_line`)
 and is appended as its draw finishes; ``--resume`` keeps the lines whose checksum, seed and
-shape are right (a line that fails is named on stderr and its draw redone), the spec of
-the draws (``draws_spec.json``: scenario file hash, seed, solver) must match, and `draws`
-may grow.
+shape are right (a line that fails is named on stderr and its draw redone: so is a line
+written before the crowd keys existed), the spec of the draws (``draws_spec.json``:
+scenario file hash, seed, solver, comfort distance) must match, and `draws` may grow.
 
 A row of ``comparison.json`` (:data:`DRAW_ROW_KEYS`) per controller, over its simulated
 draws: `success_rate` (reached), `stall_rate`, `timeout_rate` (neither reached nor
 stalled: still moving at the end, or stopped), `unsafe_rate`, `t_reach_p50_s` /
 `t_reach_p90_s` over the reached draws, `path_length_mean_m`, `min_clearance_m` (the
-smallest over draws) and `step_us_median`.
+smallest over draws) and `step_us_median`; against the true obstacles: `collision_rate`
+(draws with a collision), `min_distance_m` (the mean over draws of each draw's minimum),
+`min_distance_worst_m` (the smallest), `comfort_violation_s` (mean over draws),
+`obstacle_collision_frequency` (per obstacle index: draws that collided with it, against
+the mean 1 − ε_j; :func:`stt_drake.campaign.crowd_metrics.obstacle_frequencies`) and
+`collision_within_allowed` (every obstacle's frequency within its 1 − ε_j).
 """
 
 from __future__ import annotations
@@ -40,10 +51,12 @@ import sys
 from collections.abc import Iterator, Sequence
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from stt_drake.campaign.crowd_metrics import CROWD_KEYS, crowd_record, is_crowd_record
+from stt_drake.campaign.crowd_metrics import obstacle_frequencies as _frequencies
 from stt_drake.campaign.folder import (
     CHECKSUM_KEY,
     check_same_spec,
@@ -55,12 +68,20 @@ from stt_drake.compare import (
     CompareError,
     markdown_table,
     min_clearance,
-    output_reach_time,
     simulate_baseline,
     simulate_stt,
 )
 from stt_drake.compare_checks import DRAWS_FILE, check_common, check_out, comparison_folder
+from stt_drake.core.crowd_metrics import (
+    DEFAULT_COMFORT_DISTANCE,
+    check_comfort_distance,
+    output_reach_time,
+)
+from stt_drake.core.rules import RuleError
 from stt_drake.runlog import restore_non_finite, write_json
+
+if TYPE_CHECKING:
+    from stt_drake.config import ScenarioText
 
 #: The controllers a draws comparison knows, in table order.
 DRAW_CONTROLLERS = ("stt", "stt-guided", "cbf", "apf")
@@ -77,25 +98,41 @@ DRAW_ROW_KEYS = (
     "path_length_mean_m",
     "min_clearance_m",
     "step_us_median",
+    "collision_rate",
+    "min_distance_m",
+    "min_distance_worst_m",
+    "comfort_violation_s",
+    "obstacle_collision_frequency",
+    "collision_within_allowed",
 )
+#: The crowd keys of a draw record (those of the campaigns' runs but path length and the
+#: reach time, which the record has already as `path_length_m` and `t_reach_s`).
+DRAW_CROWD_KEYS = tuple(k for k in CROWD_KEYS if k not in ("path_length_m", "time_to_goal_s"))
 DRAWS_SPEC_FILE = "draws_spec.json"
+#: Draws-spec keys added later, with the value an older ``draws_spec.json`` meant.
+_SPEC_DEFAULTS = {"comfort_distance": DEFAULT_COMFORT_DISTANCE}
 #: The most draws a comparison may ask for (every record is kept in memory).
 MAX_DRAWS = 1_000_000
 
 
 def draw_record(
-    text: str, name: str, controller: str, draw: int, seed: int, solver: str = "osqp"
+    source: ScenarioText,
+    controller: str,
+    draw: int,
+    seed: int,
+    solver: str = "osqp",
+    comfort_distance: float = DEFAULT_COMFORT_DISTANCE,
 ) -> dict[str, Any]:
     """Simulate `controller` on draw `draw` (scenario seed `seed`); the record of the
     module docstring."""
     from stt_drake.build import prepare_scenario
     from stt_drake.build.guide import stall_rule
     from stt_drake.campaign import ClosedLoop
-    from stt_drake.config import AssumptionError, GuideConfig, parse_schema
+    from stt_drake.config import AssumptionError, GuideConfig
     from stt_drake.core.progress import find_stalls
 
     record: dict[str, Any] = {"controller": controller, "draw": draw, "seed": seed}
-    schema = parse_schema(text, name, guide=controller == "stt-guided")
+    schema = source.parse(guide=controller == "stt-guided")
     if controller == "stt-guided" and schema.guide is None:
         schema.guide = GuideConfig()
     try:
@@ -115,6 +152,7 @@ def draw_record(
     collision = ClosedLoop.from_log(log).collision_probability()["output"]
     unsafe = bool(np.any(collision > 1.0 - log.epsilon + 1e-9))
     steps = np.linalg.norm(np.diff(log.output, axis=0), axis=1)
+    crowd = crowd_record(log, comfort_distance)
     return {
         **record,
         "status": "simulated",
@@ -125,14 +163,20 @@ def draw_record(
         "path_length_m": float(steps.sum()),
         "min_clearance_m": min_clearance(log),
         "step_us": run.step_us,
+        **{key: crowd[key] for key in DRAW_CROWD_KEYS},
     }
 
 
 def draws_task(
-    text: str, name: str, solver: str, batch: Sequence[tuple[str, int, int]]
+    source: ScenarioText,
+    solver: str,
+    comfort_distance: float,
+    batch: Sequence[tuple[str, int, int]],
 ) -> list[dict[str, Any]]:
     """One executor task: the records of a batch of (controller, draw, seed)."""
-    return [draw_record(text, name, c, draw, seed, solver) for c, draw, seed in batch]
+    return [
+        draw_record(source, c, draw, seed, solver, comfort_distance) for c, draw, seed in batch
+    ]
 
 
 def _is_number(value: Any) -> bool:
@@ -157,6 +201,8 @@ def _is_draw_record(record: Any, seed: int) -> bool:
         and all(isinstance(record.get(k), bool) for k in ("reached", "stalled", "unsafe"))
         and (t_reach is None or _is_number(t_reach))
         and all(_is_number(record.get(k)) for k in ("path_length_m", "min_clearance_m", "step_us"))
+        and all(k in record for k in DRAW_CROWD_KEYS)
+        and is_crowd_record({**record, "time_to_goal_s": t_reach})
     )
 
 
@@ -205,6 +251,7 @@ def draw_row(controller: str, records: Sequence[dict[str, Any]]) -> dict[str, An
 
     times = [r["t_reach_s"] for r in simulated if r["reached"]]
     timeout = sum(not r["reached"] and not r["stalled"] for r in simulated)
+    frequencies = _frequencies(simulated)
     return {
         "controller": controller,
         "draws": count,
@@ -219,6 +266,18 @@ def draw_row(controller: str, records: Sequence[dict[str, Any]]) -> dict[str, An
         else None,
         "min_clearance_m": min((r["min_clearance_m"] for r in simulated), default=None),
         "step_us_median": statistics.median(r["step_us"] for r in simulated) if count else None,
+        "collision_rate": rate("collided"),
+        "min_distance_m": statistics.fmean(r["min_distance_m"] for r in simulated)
+        if count
+        else None,
+        "min_distance_worst_m": min((r["min_distance_m"] for r in simulated), default=None),
+        "comfort_violation_s": statistics.fmean(r["comfort_violation_s"] for r in simulated)
+        if count
+        else None,
+        "obstacle_collision_frequency": frequencies,
+        "collision_within_allowed": all(e["within_allowed"] for e in frequencies)
+        if count
+        else None,
     }
 
 
@@ -228,7 +287,7 @@ def _check_spec(out_dir: Path, spec: dict[str, Any], resume: bool) -> None:
     path = out_dir / DRAWS_SPEC_FILE
     if resume and path.exists():
         try:
-            check_same_spec(path, spec, "comparison")
+            check_same_spec(path, spec, "comparison", defaults=_SPEC_DEFAULTS)
         except CampaignError as error:
             raise CompareError(str(error)) from None
     write_json(path, spec)
@@ -243,6 +302,7 @@ def compare_draws(
     workers: int | None = None,
     solver: str = "osqp",
     resume: bool = False,
+    comfort_distance: float = DEFAULT_COMFORT_DISTANCE,
 ) -> dict[str, Any]:
     """Run every controller on `draws` draws (module docstring) on `workers` local
     processes; write ``draws.jsonl``, ``comparison.json`` and ``comparison.md`` into
@@ -257,7 +317,12 @@ def compare_draws(
     """
     from stt_drake.campaign import run_seed
     from stt_drake.campaign.backends import LocalPool, execute
-    from stt_drake.config import ScenarioError, has_random_field, parse_schema, read_scenario_file
+    from stt_drake.config import (
+        ScenarioError,
+        ScenarioText,
+        draws_obstacles,
+        read_scenario_file,
+    )
 
     path = Path(scenario_path)
     unknown = [c for c in controllers if c not in DRAW_CONTROLLERS]
@@ -271,21 +336,28 @@ def compare_draws(
     if seed < 0:
         raise CompareError(f"--seed: must be ≥ 0 (got {seed})")
     try:
+        check_comfort_distance(comfort_distance, "--comfort-distance")
+    except RuleError as error:
+        raise CompareError(str(error)) from None
+    try:
         text = read_scenario_file(path)
-        schema = parse_schema(text, path.stem)
+        source = ScenarioText(text, path.stem, str(path.resolve().parent))
+        schema = source.parse()
     except ScenarioError as error:
         raise CompareError(f"SCENARIO: bad scenario {path}: {error}") from None
-    if not has_random_field(schema.random_obstacles):
+    if not draws_obstacles(schema):
         raise CompareError(
             "--draws: the scenario needs a random_obstacles section (count > 0 or a "
-            "count_range) to draw from"
+            "count_range) or a crowd section to draw from"
         )
     check_common(schema, controllers, workers)
     check_out(out_dir)
     ordered = [c for c in DRAW_CONTROLLERS if c in controllers]
     spec = {"scenario_sha256": hashlib.sha256(text.encode()).hexdigest(), "seed": seed}
     with comparison_folder(out_dir, resume):
-        _check_spec(out_dir, {**spec, "solver": solver}, resume)
+        _check_spec(
+            out_dir, {**spec, "solver": solver, "comfort_distance": comfort_distance}, resume
+        )
         done, skipped = read_draws(out_dir / DRAWS_FILE, seed) if resume else ({}, [])
         for line in skipped:
             print(f"stt-drake compare: {out_dir / DRAWS_FILE}: {line}; redone", file=sys.stderr)
@@ -302,7 +374,8 @@ def compare_draws(
                         done[(record["controller"], record["draw"])] = record
                     stream.flush()
 
-                execute(backend, draws_task, (text, schema.name, solver), pending, on_records)
+                arguments = (source, solver, comfort_distance)
+                execute(backend, draws_task, arguments, pending, on_records)
         except BrokenProcessPool:
             raise CampaignStoppedError(
                 "a worker process died (killed, out of memory or a crash in native code); "
@@ -318,6 +391,7 @@ def compare_draws(
             "mode": "draws",
             "draws": draws,
             "seed": seed,
+            "comfort_distance_m": comfort_distance,
             "rejected_draws": sum(r["status"] == "rejected" for r in records) // len(ordered),
             "controllers": ordered,
             "rows": rows,
@@ -340,6 +414,9 @@ _COLUMNS = (
     ("path (m, mean)", "path_length_mean_m"),
     ("min clearance (m)", "min_clearance_m"),
     ("step (µs)", "step_us_median"),
+    ("true collision", "collision_rate"),
+    ("min distance (m, mean)", "min_distance_m"),
+    ("comfort violation (s, mean)", "comfort_violation_s"),
 )
 
 

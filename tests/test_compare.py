@@ -29,6 +29,10 @@ ROW_KEYS = {
     "min_clearance_m",
     "step_us_median",
     "qp_infeasible_count",
+    "collision_rate",
+    "min_distance_m",
+    "comfort_violation_s",
+    "obstacle_collision_frequency",
 }
 
 #: A 2D omni robot among 2 moving obstacles, 6 s.

@@ -27,6 +27,12 @@ DRAW_ROW_KEYS = {
     "path_length_mean_m",
     "min_clearance_m",
     "step_us_median",
+    "collision_rate",
+    "min_distance_m",
+    "min_distance_worst_m",
+    "comfort_violation_s",
+    "obstacle_collision_frequency",
+    "collision_within_allowed",
 }
 
 #: Three obstacles in a U around the line (omni_pocket_u), drawn at random around their

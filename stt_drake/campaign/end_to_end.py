@@ -14,6 +14,10 @@ must have a `perception:` section. At every logged time k the run records:
 A run that stops early (an error, a stalled integrator) is counted as colliding with every
 obstacle from its last logged sample to the end: the collision frequencies stay upper
 bounds of what complete runs would give.
+
+A simulated run also records the crowd metrics against its true obstacles
+(:data:`stt_drake.campaign.crowd_metrics.CROWD_KEYS`: `collided`, `min_distance_m`,
+`comfort_violation_s`, ...), judged on the logged samples only.
 """
 
 from __future__ import annotations
@@ -22,17 +26,16 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.stats import chi2
 
+from stt_drake.campaign.crowd_metrics import crowd_record, is_crowd_record
 from stt_drake.campaign.randomisation import has_run_story
 from stt_drake.campaign.sampling import CHECKS, hit_intervals
+from stt_drake.core import consistency
+from stt_drake.core.crowd_metrics import DEFAULT_COMFORT_DISTANCE
 
 if TYPE_CHECKING:
-    from stt_drake.config import Scenario
+    from stt_drake.config import Scenario, ScenarioText
     from stt_drake.runlog import RunLog
-
-#: The belief's ellipsoid whose coverage of the true centre is reported.
-CALIBRATION_LEVEL = 0.95
 
 
 def logged_times(scenario: Scenario) -> int:
@@ -68,20 +71,22 @@ def true_collisions(log: RunLog, steps: int) -> dict[str, np.ndarray]:
 
 def calibration_counts(log: RunLog, steps: int) -> tuple[list[int], list[int]]:
     """Per obstacle, (logged times with the true centre inside the belief's
-    :data:`CALIBRATION_LEVEL` ellipsoid, logged times with a track)."""
-    n = log.dimension
+    :data:`CALIBRATION_LEVEL` ellipsoid, logged times with a track)
+    (:func:`stt_drake.core.consistency.calibration_counts`)."""
     samples, truth = _truth(log, steps)
-    error = truth - log.mean[:samples]
-    active = log.active[:samples]
-    covariance = np.where(active[..., None, None], log.belief_covariance[:samples], np.eye(n))
-    distance = np.einsum(
-        "tja,tja->tj", error, np.linalg.solve(covariance, error[..., None])[..., 0]
+    inside, tracked = consistency.calibration_counts(
+        truth, log.mean[:samples], log.belief_covariance[:samples], log.active[:samples]
     )
-    inside = (distance <= chi2.ppf(CALIBRATION_LEVEL, n)) & active
-    return inside.sum(axis=0).tolist(), active.sum(axis=0).tolist()
+    return inside.tolist(), tracked.tolist()
 
 
-def end_to_end_run(schema: Scenario, index: int, seed: int, steps: int) -> dict[str, Any]:
+def end_to_end_run(
+    schema: Scenario,
+    index: int,
+    seed: int,
+    steps: int,
+    comfort_distance: float = DEFAULT_COMFORT_DISTANCE,
+) -> dict[str, Any]:
     """Complete the parsed scenario `schema` with `seed`, simulate truth to plant, check.
 
     Record: ``{"run", "seed", "status"}`` with status ``error`` (the run could not be built
@@ -90,7 +95,8 @@ def end_to_end_run(schema: Scenario, index: int, seed: int, steps: int) -> dict[
     the true-obstacle kind's), ``inside`` and ``tracked`` (calibration counts per
     obstacle), ``samples`` (logged), ``holds``, ``reached``, ``success``,
     ``stop_reason`` and ``stalls`` (as in metrics.json) and ``belief_updates`` (tracker
-    updates that changed a track).
+    updates that changed a track) and the crowd keys (comfort distance `comfort_distance`
+    m, :mod:`stt_drake.campaign.crowd_metrics`).
     """
     from stt_drake.build import prepare_scenario
     from stt_drake.run import simulate
@@ -125,25 +131,28 @@ def end_to_end_run(schema: Scenario, index: int, seed: int, steps: int) -> dict[
         "stop_reason": result.metrics["stop_reason"],
         "stalls": result.metrics["stalls"],
         "belief_updates": len(result.metrics["belief_discontinuities"]),
+        **crowd_record(log, comfort_distance),
     }
 
 
 def end_to_end_task(
-    text: str, name: str, steps: int, guide: bool, runs: Sequence[tuple[int, int]]
+    source: ScenarioText,
+    steps: int,
+    guide: bool,
+    comfort_distance: float,
+    runs: Sequence[tuple[int, int]],
 ) -> list[dict[str, Any]]:
     """One executor task: the records of a batch of (run index, seed), the YAML parsed once
     for the batch (the schema holds Drake objects that do not pickle, so the text travels);
     `guide` False drops the scenario's guide section."""
-    from stt_drake.config import parse_schema
-
-    schema = parse_schema(text, name, guide)
-    return [end_to_end_run(schema, index, seed, steps) for index, seed in runs]
+    schema = source.parse(guide)
+    return [end_to_end_run(schema, index, seed, steps, comfort_distance) for index, seed in runs]
 
 
 def is_end_to_end_record(record: dict[str, Any], count: int, steps: int) -> bool:
     """Whether a record read back from ``runs.jsonl`` has the shape :func:`end_to_end_run`
-    gives for `count` obstacles and `steps` logged times (`stop_reason` and `stalls` may be
-    missing, as in records of older versions)."""
+    gives for `count` obstacles and `steps` logged times (`stop_reason`, `stalls` and the
+    crowd keys may be missing, as in records of older versions)."""
     status = record.get("status")
     for check in CHECKS:
         ranges = record.get(check)
@@ -165,6 +174,7 @@ def is_end_to_end_record(record: dict[str, Any], count: int, steps: int) -> bool
         and all(isinstance(record.get(key), bool) for key in ("holds", "reached", "success"))
         and isinstance(record.get("belief_updates"), int)
         and has_run_story(record)
+        and is_crowd_record(record, count)
     )
 
 

@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from stt_drake.campaign.spec import CampaignError, CampaignSpec
+from stt_drake.core.crowd_metrics import DEFAULT_COMFORT_DISTANCE
 from stt_drake.runlog import restore_non_finite, strict_json, write_json
 
 RUNS_FILE, SPEC_FILE, LOCK_FILE = "runs.jsonl", "campaign_spec.json", ".lock"
@@ -40,7 +41,7 @@ CHECKSUM_KEY = "sha256"
 #: Why a line that is a run record was not taken: no checksum, or a wrong one.
 NO_CHECKSUM, BAD_CHECKSUM = "no checksum", "checksum mismatch"
 #: Spec fields added after the first campaigns, with the value older specs meant.
-SPEC_DEFAULTS = {"guide": True}
+SPEC_DEFAULTS = {"guide": True, "comfort_distance": DEFAULT_COMFORT_DISTANCE}
 
 Record = dict[str, Any]
 

@@ -2,7 +2,10 @@
 bounds, ``campaign.json``, the figure and the printed table.
 
 Summaries are order-independent functions of the set of runs. The statistics are in
-:mod:`stt_drake.core.statistics`.
+:mod:`stt_drake.core.statistics`. Randomisation and end-to-end summaries also hold the
+crowd metrics against the true obstacles (:func:`stt_drake.campaign.crowd_metrics.crowd_summary`:
+`collision_rate`, `min_distance_m` p5/p50, `comfort_violation_s` p50/p90, per-obstacle
+frequencies against 1 − ε_j).
 """
 
 from __future__ import annotations
@@ -14,10 +17,12 @@ from typing import Any
 
 import numpy as np
 
-from stt_drake.campaign.end_to_end import CALIBRATION_LEVEL, logged_times
+from stt_drake.campaign.crowd_metrics import crowd_line, crowd_summary
+from stt_drake.campaign.end_to_end import logged_times
 from stt_drake.campaign.randomisation import draw_failed, failure_name, stalled_to_end
 from stt_drake.campaign.sampling import CHECKS, ClosedLoop, output_collided
 from stt_drake.campaign.spec import CampaignSpec
+from stt_drake.core.consistency import CALIBRATION_LEVEL
 from stt_drake.core.statistics import (
     VIOLATED,
     clopper_pearson,
@@ -291,6 +296,8 @@ def write_summary(
         body["true_obstacle_motion"] = spec.motion
         body["ou_tau_s"] = spec.tau if spec.motion == "ou" else None
         body["closed_loop"] = closed_loop_summary
+    if spec.kind != "true-obstacles":
+        body.update(crowd_summary(records, spec.comfort_distance))
     body.update(error_summary(records))
     if body["error_runs"]:
         body["holds"] = False  # a run that raised checked nothing: no verdict can hold
@@ -506,6 +513,8 @@ def report(summary: dict[str, Any]) -> str:
             lines.append(
                 f"  failing draw: run {failure['run']} seed {failure['seed']} → {failure['yaml']}"
             )
+    if "crowd_runs" in summary:
+        lines.append(crowd_line(summary))
     if summary.get("error_runs"):
         first = summary["first_error"]
         reason = (first["reason"].strip().splitlines() or [""])[0]

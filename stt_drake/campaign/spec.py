@@ -12,11 +12,16 @@ import math
 from dataclasses import dataclass
 
 from stt_drake.campaign.sampling import MOTIONS
+from stt_drake.core.crowd_metrics import DEFAULT_COMFORT_DISTANCE, check_comfort_distance
+from stt_drake.core.rules import RuleError
 
 KINDS = ("true-obstacles", "randomisation", "end-to-end")
 #: The kinds whose runs sample the true obstacles around the belief (``--true-obstacle-motion``
 #: and ``--ou-tau`` apply to them only).
 SAMPLING_KINDS = ("true-obstacles",)
+#: The kinds whose runs simulate and record the crowd metrics against the true obstacles
+#: (:mod:`stt_drake.campaign.crowd_metrics`; ``--comfort-distance`` applies to them only).
+CROWD_KINDS = ("randomisation", "end-to-end")
 #: The most runs a campaign (and a comparison's campaign, or its draws) may ask for: every
 #: run is a record kept in memory and a line of runs.jsonl, so a mistyped count is refused
 #: before any work instead of filling the memory or looping at start-up.
@@ -53,6 +58,9 @@ class CampaignSpec:
     tau: float = DEFAULT_TAU
     #: False: the scenario's guide section is dropped (the reactive tube, same draws).
     guide: bool = True
+    #: d_c (m): a run's `comfort_violation_s` counts the time closer than this
+    #: (:mod:`stt_drake.core.crowd_metrics`); a spec written before it existed meant the default.
+    comfort_distance: float = DEFAULT_COMFORT_DISTANCE
 
     def validate(self) -> None:
         """Raise CampaignError naming the option of the first bad value."""
@@ -71,6 +79,16 @@ class CampaignSpec:
             raise CampaignError(sampling_only("--true-obstacle-motion", self.kind))
         if self.tau != DEFAULT_TAU and (self.kind not in SAMPLING_KINDS or self.motion != "ou"):
             raise CampaignError(sampling_only("--ou-tau", self.kind, self.motion))
+        try:
+            check_comfort_distance(self.comfort_distance, "--comfort-distance")
+        except RuleError as error:
+            raise CampaignError(str(error)) from None
+        if self.kind not in CROWD_KINDS and self.comfort_distance != DEFAULT_COMFORT_DISTANCE:
+            raise CampaignError(
+                f"--comfort-distance: applies only to --kind {' or '.join(CROWD_KINDS)} (the "
+                f"runs that are simulated against their true obstacles); a campaign of --kind "
+                f"{self.kind} samples the obstacles against one closed loop"
+            )
 
 
 def sampling_only(option: str, kind: str, motion: str | None = None) -> str:

@@ -16,6 +16,7 @@ from stt_drake.campaign.executor import RUNS_FILE, run_campaign
 from stt_drake.campaign.report import SUMMARY_FILE, report
 from stt_drake.campaign.sampling import MOTIONS
 from stt_drake.campaign.spec import (
+    CROWD_KINDS,
     DEFAULT_MOTION,
     DEFAULT_TAU,
     KINDS,
@@ -27,6 +28,7 @@ from stt_drake.campaign.spec import (
     sampling_only,
 )
 from stt_drake.cli.main import BadInputError, CommandError, resolve_scenario, results_folder
+from stt_drake.core.crowd_metrics import DEFAULT_COMFORT_DISTANCE
 
 
 def resume_command(
@@ -42,6 +44,8 @@ def resume_command(
         words += ["--ou-tau", repr(spec.tau)]
     if not spec.guide:
         words += ["--no-guide"]
+    if spec.comfort_distance != DEFAULT_COMFORT_DISTANCE:
+        words += ["--comfort-distance", repr(spec.comfort_distance)]
     if workers is not None:
         words += ["--workers", str(workers)]
     if scheduler is not None:
@@ -64,6 +68,12 @@ def _motion(args: argparse.Namespace) -> tuple[str, float]:
 
 def _campaign(args: argparse.Namespace) -> bool:
     motion, tau = _motion(args)
+    comfort = args.comfort_distance
+    if comfort is not None and args.kind not in CROWD_KINDS:
+        raise BadInputError(
+            f"stt-drake campaign: --comfort-distance: applies only to --kind "
+            f"{' or '.join(CROWD_KINDS)} (the runs simulated against their true obstacles)"
+        )
     args.scenario = resolve_scenario(args.scenario)  # a path, or a packaged scenario's name
     spec = CampaignSpec(
         scenario=str(args.scenario),
@@ -73,6 +83,7 @@ def _campaign(args: argparse.Namespace) -> bool:
         motion=motion,
         tau=tau,
         guide=not args.no_guide,
+        comfort_distance=DEFAULT_COMFORT_DISTANCE if comfort is None else comfort,
     )
     out_dir = args.out
     if out_dir is None:
@@ -162,5 +173,13 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "--no-guide",
         action="store_true",
         help="drop the scenario's guide section: the reactive tube on the same runs",
+    )
+    parser.add_argument(
+        "--comfort-distance",
+        type=float,
+        default=None,
+        help="randomisation / end-to-end: a run's comfort_violation_s counts the seconds its "
+        "surface distance to a true obstacle is below this (m, default "
+        f"{DEFAULT_COMFORT_DISTANCE:g}: about the edge of Hall's intimate space)",
     )
     parser.set_defaults(handler=_campaign)

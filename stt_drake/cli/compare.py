@@ -57,6 +57,7 @@ def _compare(args: argparse.Namespace) -> bool:
             model_error=args.model_error,
             solver=args.solver,
             resume=args.resume,
+            comfort_distance=args.comfort_distance,
         )
     print(comparison_table(document["rows"]))
     print(f"  wrote {args.out / TABLE_FILE} and comparison.json, comparison.png there")
@@ -93,6 +94,7 @@ def _compare_draws(args: argparse.Namespace, scenario: Path) -> bool:
             workers=args.workers,
             solver=args.solver,
             resume=args.resume,
+            comfort_distance=args.comfort_distance,
         )
     print(draws_table(document["rows"]))
     print(f"  wrote {args.out / 'comparison.md'} and comparison.json, draws.jsonl there")
@@ -140,6 +142,14 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--solver", default="osqp", help="the CBF's QP solver: osqp (default) or clarabel"
+    )
+    parser.add_argument(
+        "--comfort-distance",
+        type=float,
+        default=0.5,
+        help="comfort_violation_s counts the seconds the output's surface distance to a true "
+        "obstacle, ‖y − O_j‖ − r_o_j, is below this (m, default 0.5: about the edge of Hall's "
+        "intimate space)",
     )
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument(
