@@ -352,3 +352,46 @@ def test_the_resume_command_keeps_the_comfort_distance(tmp_path):
     assert "--comfort-distance 0.6 " in resume_command(spec, tmp_path)
     default = CampaignSpec(scenario="f.yaml", kind="randomisation", runs=3)
     assert "--comfort-distance" not in resume_command(default, tmp_path)
+
+
+ABSENT_ON_THE_PATH = """
+name: absent_on_the_path
+start: [0.0, 0.0]
+initial_set_radius: 0.3
+target: [4.0, 0.0]
+target_set_radius: 0.3
+duration: 8.0
+tube: {r_min: 0.1, r_max: 0.25, k1: 0.8, k2: 0.4, k3: 0.4, max_center_speed: 1.5}
+controller: {kappa: [8.0]}
+obstacles:
+  - motion: !Recorded {file: walker.csv, id: 0}
+    radius: 0.3
+    sigma: 0.05
+    epsilon: 0.9
+    p_d: 0.9999
+"""
+
+
+def test_an_obstacle_outside_its_track_is_nowhere(tmp_path):
+    """A pedestrian walks onto the robot's straight path and its track ends there at
+    0.6 s, long before the robot arrives: it no longer exists, so nothing collides with
+    it — not the crowd metrics, not the belief's collision probabilities, not a sampled
+    true obstacle (its held end sample is a value nothing may read)."""
+    from stt_drake.campaign import ClosedLoop
+    from stt_drake.campaign.crowd_metrics import crowd_record
+    from stt_drake.campaign.sampling import sample_true_obstacles
+
+    rows = [f"{0.1 * k:.1f},0,2.0,{-0.6 + 0.1 * k:.1f}" for k in range(7)]  # ends at (2, 0)
+    (tmp_path / "walker.csv").write_text("t,id,x,y\n" + "\n".join(rows) + "\n")
+    (tmp_path / "absent.yaml").write_text(ABSENT_ON_THE_PATH)
+    log = simulate(load_scenario(tmp_path / "absent.yaml")).log
+    crossing = np.abs(log.output[:, 0] - 2.0) < 0.1
+    assert np.any(crossing) and not np.any(log.active[crossing, 0])  # passed where it ended
+    record = crowd_record(log)
+    assert not record["collided"] and record["obstacle_collisions"] == [False]
+    assert record["min_distance_m"] > 0.5  # only while the walker existed, 2 m away
+    loop = ClosedLoop.from_log(log)
+    collision = loop.collision_probability()
+    assert np.all(collision["output"][~log.active[:, 0], 0] == 0.0)
+    records = sample_true_obstacles(loop, "static", 1.0, [(0, 1), (1, 2)])
+    assert all(record["output"] == [[]] for record in records)

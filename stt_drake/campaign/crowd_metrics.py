@@ -65,10 +65,11 @@ TRUTH_KEY = "true_obstacle_position"
 
 def true_centres(log: RunLog) -> np.ndarray:
     """(T, m, n) the run's true obstacle centres (module docstring): the logged
-    ``true_obstacle_position``, else the scripted means μ_j(t)."""
+    ``true_obstacle_position``, else the scripted means μ_j(t); NaN where an obstacle does
+    not exist (a recorded track outside its span: its belief slot is inactive)."""
     if TRUTH_KEY in log:
         return log.rows(TRUTH_KEY).reshape(log.samples, log.count, log.dimension)
-    return log.mean
+    return np.where(np.asarray(log.active, dtype=bool)[..., None], log.mean, np.nan)
 
 
 def crowd_record(

@@ -49,6 +49,9 @@ class ClosedLoop:
     obstacle_radius: np.ndarray  # (T, m) r_o_j
     epsilon: np.ndarray  # (m,) ε_j checked against
     covariance: np.ndarray | None = None  # (T, m, n, n) full Σ_j(t) (m²), None: σ_j² I
+    # (T, m) whether obstacle j exists at t (a recorded track's span, a tracker's track);
+    # an absent obstacle never collides. None: every obstacle at every time.
+    active: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -72,6 +75,7 @@ class ClosedLoop:
             obstacle_radius=run.obstacle_radius.copy(),
             epsilon=np.asarray(checked, dtype=float).reshape(run.count).copy(),
             covariance=None if run.covariance is None else run.covariance.copy(),
+            active=None if bool(np.all(run.active)) else run.active.copy(),
         )
 
     def save(self, path: Path) -> None:
@@ -91,7 +95,7 @@ class ClosedLoop:
         from stt_drake.core.probability import avoid_probability
 
         if self.covariance is not None:
-            return self._anisotropic_collision_probability()
+            return self._absent_never_collide(self._anisotropic_collision_probability())
         output = avoid_probability(
             self.output[:, None, :], self.mean, self.sigma, self.obstacle_radius
         )
@@ -101,7 +105,12 @@ class ClosedLoop:
             self.sigma,
             self.obstacle_radius + np.maximum(self.radius, 0.0)[:, None],
         )
-        return {"output": 1.0 - output, "tube": 1.0 - tube}
+        return self._absent_never_collide({"output": 1.0 - output, "tube": 1.0 - tube})
+
+    def _absent_never_collide(self, probability: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        if self.active is None:
+            return probability
+        return {check: np.where(self.active, p, 0.0) for check, p in probability.items()}
 
     def _anisotropic_collision_probability(self) -> dict[str, np.ndarray]:
         from stt_drake.core import anisotropic
@@ -187,6 +196,8 @@ def sample_true_obstacles(
     for check, (point, limit) in reach.items():
         gap = (point[:, None, :] - loop.mean)[None] - scaled  # point − O_j: (R, T, m, n)
         hit = np.einsum("rtjk,rtjk->rjt", gap, gap) < (limit**2).T[None]
+        if loop.active is not None:  # an absent obstacle is nowhere
+            hit &= loop.active.T[None]
         ranges[check] = hit_intervals(hit)
     return [
         {"run": index, "seed": seed, **{check: ranges[check][r] for check in CHECKS}}

@@ -72,9 +72,11 @@ def surface_distances(
     output: np.ndarray, centres: np.ndarray, radius: np.ndarray, robot_radius: float = 0.0
 ) -> np.ndarray:
     """(T, m) d_j(t_k) = ‖y(t_k) − O_j(t_k)‖ − r_o_j − r_robot (m), from the output (T, n),
-    the true centres (T, m, n) and the radii r_o (m,)."""
+    the true centres (T, m, n) and the radii r_o (m,); +inf where a centre is NaN (the
+    obstacle does not exist then: a recorded track outside its span)."""
     gap = np.asarray(output, dtype=float)[:, None, :] - np.asarray(centres, dtype=float)
-    return np.linalg.norm(gap, axis=2) - np.asarray(radius, dtype=float) - robot_radius
+    distance = np.linalg.norm(gap, axis=2) - np.asarray(radius, dtype=float) - robot_radius
+    return np.where(np.isnan(distance), np.inf, distance)
 
 
 def time_below(t: np.ndarray, values: np.ndarray, level: float) -> float:
