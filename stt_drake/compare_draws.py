@@ -55,8 +55,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from stt_drake.campaign.crowd_metrics import CROWD_KEYS, crowd_record, is_crowd_record
-from stt_drake.campaign.crowd_metrics import obstacle_frequencies as _frequencies
+from stt_drake.campaign.crowd_metrics import (
+    CROWD_KEYS,
+    collision_check,
+    crowd_record,
+    is_crowd_record,
+)
 from stt_drake.campaign.folder import (
     CHECKSUM_KEY,
     check_same_spec,
@@ -251,7 +255,6 @@ def draw_row(controller: str, records: Sequence[dict[str, Any]]) -> dict[str, An
 
     times = [r["t_reach_s"] for r in simulated if r["reached"]]
     timeout = sum(not r["reached"] and not r["stalled"] for r in simulated)
-    frequencies = _frequencies(simulated)
     return {
         "controller": controller,
         "draws": count,
@@ -274,10 +277,7 @@ def draw_row(controller: str, records: Sequence[dict[str, Any]]) -> dict[str, An
         "comfort_violation_s": statistics.fmean(r["comfort_violation_s"] for r in simulated)
         if count
         else None,
-        "obstacle_collision_frequency": frequencies,
-        "collision_within_allowed": all(e["within_allowed"] for e in frequencies)
-        if count
-        else None,
+        **collision_check(simulated),
     }
 
 

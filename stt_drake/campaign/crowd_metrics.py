@@ -149,6 +149,19 @@ def obstacle_frequencies(records: Sequence[dict[str, Any]]) -> list[dict[str, An
     return entries
 
 
+def collision_check(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """The per-obstacle true-collision check of `records` (crowd records): the keys
+    `obstacle_collision_frequency` (:func:`obstacle_frequencies`) and
+    `collision_within_allowed` (every obstacle within its 1 − ε_j; None without records)."""
+    frequencies = obstacle_frequencies(records)
+    return {
+        "obstacle_collision_frequency": frequencies,
+        "collision_within_allowed": all(e["within_allowed"] for e in frequencies)
+        if records
+        else None,
+    }
+
+
 def _quantiles(values: Sequence[float], levels: dict[str, float]) -> dict[str, float] | None:
     """{name: the `levels[name]` percentile of `values`} (None when there are none)."""
     if not values:
@@ -164,7 +177,6 @@ def crowd_summary(
     docstring); every rate and percentile is None when none has them."""
     crowd = [r for r in records if has_crowd(r)]
     count = len(crowd)
-    frequencies = obstacle_frequencies(crowd)
     return {
         "crowd_runs": count,
         "comfort_distance_m": comfort_distance,
@@ -176,10 +188,7 @@ def crowd_summary(
         "path_length_mean_m": float(np.mean([r["path_length_m"] for r in crowd]))
         if count
         else None,
-        "obstacle_collision_frequency": frequencies,
-        "collision_within_allowed": all(e["within_allowed"] for e in frequencies)
-        if count
-        else None,
+        **collision_check(crowd),
     }
 
 

@@ -198,28 +198,20 @@ def _nis_slot(
 
 @njit(**_JIT)
 def _monitored_slots(
-    x: np.ndarray,
-    p: np.ndarray,
+    buffers: tuple,
     dt: np.ndarray,
     z: np.ndarray,
     base: float,
     noise_covariance: np.ndarray,
-    scale: np.ndarray,
-    ring: np.ndarray,
-    count: np.ndarray,
-    nis: np.ndarray,
-    test: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    gain: float,
-    step_cap: float,
-    relax: float,
-    max_scale: float,
+    rule: tuple,
     n: int,
 ) -> None:
     """Every slot predicted with density base·scale[j], its NIS ν taken, the window test
     run, the scale adapted (gain > 0) and the prediction topped up with the extra process
-    noise, then corrected; all in place."""
+    noise, then corrected; all in place. `buffers` = (x, p, scale, ring, count, nis, test),
+    written; `rule` = (lower, upper, gain, step_cap, relax, max_scale)."""
+    x, p, scale, ring, count, nis, test = buffers
+    lower, upper, gain, step_cap, relax, max_scale = rule
     literally(n)
     chol, gain_t = np.empty((n, n)), np.empty((n, 2 * n))
     w, m = np.empty((2 * n, 2 * n)), np.empty((2 * n, n))
@@ -289,69 +281,14 @@ def track_update_monitored(
     s, r, c = scale.copy(), ring.copy(), count.copy()
     nis, test = np.empty(x.shape[0]), np.empty(x.shape[0])
     n = z.shape[1]
+    buffers = (x, p, s, r, c, nis, test)
+    rule = (lower, upper, gain, step_cap, relax, max_scale)
     if n == 1:
-        _monitored_slots(
-            x,
-            p,
-            dt,
-            z,
-            base,
-            noise_covariance,
-            s,
-            r,
-            c,
-            nis,
-            test,
-            lower,
-            upper,
-            gain,
-            step_cap,
-            relax,
-            max_scale,
-            1,
-        )
+        _monitored_slots(buffers, dt, z, base, noise_covariance, rule, 1)
     elif n == 2:
-        _monitored_slots(
-            x,
-            p,
-            dt,
-            z,
-            base,
-            noise_covariance,
-            s,
-            r,
-            c,
-            nis,
-            test,
-            lower,
-            upper,
-            gain,
-            step_cap,
-            relax,
-            max_scale,
-            2,
-        )
+        _monitored_slots(buffers, dt, z, base, noise_covariance, rule, 2)
     elif n == 3:
-        _monitored_slots(
-            x,
-            p,
-            dt,
-            z,
-            base,
-            noise_covariance,
-            s,
-            r,
-            c,
-            nis,
-            test,
-            lower,
-            upper,
-            gain,
-            step_cap,
-            relax,
-            max_scale,
-            3,
-        )
+        _monitored_slots(buffers, dt, z, base, noise_covariance, rule, 3)
     else:
         raise ValueError("track_update_monitored is compiled for n = 1, 2, 3 only")
     return x, p, s, r, c, nis, test
