@@ -5,6 +5,7 @@ scenario's `crowd:` section."""
 from __future__ import annotations
 
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -429,3 +430,29 @@ def test_the_interactive_scenario_runs_in_the_simulator():
     np.testing.assert_allclose(truth[0].reshape(20, 2), starts, atol=1e-12)
     walked = np.linalg.norm(truth[-1].reshape(20, 2) - starts, axis=1)
     assert np.median(walked) > 1.0  # 1.5 s at 1.0-1.4 m/s, some held up by others
+
+
+def test_pedestrians_faster_than_the_centre_are_named_before_the_run():
+    """Where pedestrians outrun the tube (a level set faster than max_center_speed), the
+    run's warnings say so before it starts: claim (ii) cannot be guaranteed for them."""
+    from stt_drake.build.feasibility import scenario_warnings
+
+    text = (
+        (ROOT / "diagrams" / "crowd_crossing.yaml")
+        .read_text()
+        .replace("duration: 30.0", "duration: 5.0")
+    )
+    assert not [w for w in scenario_warnings(parse_scenario(text)) if "claim (ii)" in w]
+    slow = text.replace("max_center_speed: 2.0", "max_center_speed: 0.9")
+    scenario = parse_scenario(slow)
+    warned = {
+        int(re.search(r"obstacle (\d+)", w).group(1))
+        for w in scenario_warnings(scenario)
+        if "claim (ii)" in w
+    }
+    fastest = [  # each pedestrian's fastest step between its recorded samples (σ is fixed)
+        np.max(np.linalg.norm(np.diff(o.motion.track.positions, axis=0), axis=1))
+        / np.diff(o.motion.track.times)[0]
+        for o in scenario.obstacles
+    ]
+    assert warned == {j for j, v in enumerate(fastest) if v >= 0.9} and len(warned) >= 15
