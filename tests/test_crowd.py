@@ -349,7 +349,7 @@ def test_the_crowd_scenario_has_one_obstacle_slot_per_pedestrian():
         ({"  epsilon: 0.9\n": ""}, "scenario.crowd.epsilon"),
         ({"  p_d: 0.9999\n": "  p_d: 0.5\n"}, "scenario.crowd.p_d"),
         ({"  speed_range: [1.0, 1.4]": "  speed_range: [1.4, 1.0]"}, "scenario.crowd.speed_range"),
-        ({"  robot_radius: 0.3": "  robot_radius: -0.3"}, "scenario.crowd.robot_radius"),
+        ({"  robot_radius: 0.25": "  robot_radius: -0.25"}, "scenario.crowd.robot_radius"),
     ],
 )
 def test_a_bad_crowd_section_names_the_field(changes, field):
@@ -376,7 +376,7 @@ def _recorded_crowd_text(duration: float) -> str:
     """The packaged crowd, not interactive and without perception (the scripted belief)."""
     text = _text(**{"  interactive: true\n": "  interactive: false\n"})
     start, end = text.index("perception:\n"), text.index("plant:")
-    return text[:start] + text[end:].replace("duration: 30.0", f"duration: {duration}")
+    return (text[:start] + text[end:]).replace("duration: 30.0", f"duration: {duration}")
 
 
 def test_a_crowd_that_is_not_interactive_is_a_recorded_crowd_drawn_per_seed():
@@ -386,7 +386,7 @@ def test_a_crowd_that_is_not_interactive_is_a_recorded_crowd_drawn_per_seed():
     from stt_drake.core.motion import Recorded
     from stt_drake.crowd import run_tracks
 
-    text = _recorded_crowd_text(30.0).replace("duration: 30.0", "duration: 12.0")
+    text = _recorded_crowd_text(12.0)
     scenario = parse_scenario(text)
     assert all(isinstance(o.motion, Recorded) for o in scenario.obstacles)
     tracks = run_tracks(crowd_setup(scenario), 12.0, 1.0 / scenario.crowd.period)
