@@ -28,6 +28,7 @@ never enforced.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import platform
 import statistics
@@ -199,9 +200,13 @@ def bench_anisotropic_tube_steps(repeats: int, count: int = 50) -> dict[str, Any
 def bench_tracker_update(repeats: int, count: int = 50) -> dict[str, Any]:
     """One Kalman tracker update (:func:`stt_drake.core.tracking.update`: predict over
     0.1 s, correct) of `count` tracks, 2D and 3D; and the whole
-    :meth:`~stt_drake.core.tracking.KalmanTracker.step` (with the birth and loss rules)."""
+    :meth:`~stt_drake.core.tracking.KalmanTracker.step` (with the birth and loss rules);
+    both also monitored (``monitored_update_us``, ``monitored_step_us``: the NIS test and
+    the adaptive noise, :mod:`stt_drake.core.consistency`, the default of a scenario's
+    tracker)."""
+    from stt_drake.core.consistency import Adaptation
     from stt_drake.core.perception import Detections
-    from stt_drake.core.tracking import KalmanTracker, TrackTable, birth, update
+    from stt_drake.core.tracking import KalmanTracker, TrackTable, birth, monitored_update, update
 
     results: dict[str, Any] = {}
     rng = np.random.default_rng(0)
@@ -220,6 +225,17 @@ def bench_tracker_update(repeats: int, count: int = 50) -> dict[str, Any]:
         seen = Detections(z, np.ones(count, dtype=bool), np.full(count, 0.1))
         results[f"{n}d/{count}"]["step_us"] = time_call(
             lambda: tracker.step(tracks, seen, 0.1), repeats  # noqa: B023
+        )
+        monitored = KalmanTracker(n, 1e-3, noise, 0.2, 1.0, adaptation=Adaptation(n))
+        table = dataclasses.replace(monitored.empty(count), state=state, covariance=covariance)
+        table = dataclasses.replace(table, detection_time=np.zeros(count), active=tracks.active)
+        every = np.ones(count, dtype=bool)
+        results[f"{n}d/{count}"]["monitored_update_us"] = time_call(
+            lambda: monitored_update(table, every, 0.1, z, 1e-3, noise, monitored.adaptation),  # noqa: B023
+            repeats,
+        )
+        results[f"{n}d/{count}"]["monitored_step_us"] = time_call(
+            lambda: monitored.step(table, seen, 0.1), repeats  # noqa: B023
         )
     return results
 

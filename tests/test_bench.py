@@ -85,6 +85,9 @@ def test_bench_json_report(tmp_path, capsys):
     assert set(tracker) == {"2d", "3d"}
     assert all(set(row) == {"50"} and row["50"] > 0 for row in tracker.values())
     assert {"tracker_update_50_2d_us", "tracker_update_50_3d_us"} <= set(result["targets"])
+    for row in result["details"]["tracker_update"].values():  # the default tracker's cost too
+        assert row["monitored_update_us"]["median"] > 0.0
+        assert row["monitored_step_us"]["median"] > 0.0
     # the guide (issue 24): one replan at 50 obstacles per dimension, and its closed loop
     plans = result["details"]["guide_plan"]
     for n in ("2d", "3d"):

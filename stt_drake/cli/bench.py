@@ -90,6 +90,13 @@ def format_table(result: dict[str, Any]) -> str:
             f"  {name}: fixed-rate tube at {FIXED_RATE_HZ:g} Hz / continuous tube, real-time "
             f"factor ratio {ratio:.2f}"
         )
+    for key, row in result["details"]["tracker_update"].items():
+        lines.append(
+            f"  tracker, {key} tracks: update {row['update_us']['median']:.1f} µs plain, "
+            f"{row['monitored_update_us']['median']:.1f} µs monitored (NIS test, adaptive "
+            f"noise); whole step {row['step_us']['median']:.1f} / "
+            f"{row['monitored_step_us']['median']:.1f} µs"
+        )
     lines.append("")
     lines.append("4. the guide: one replan (forecast, level sets, space-time A*), ms")
     for n, row in result["details"]["guide_plan"].items():
