@@ -1,6 +1,6 @@
 """Tests of stt_drake.core.control (the funnel controller of paper Sec. 4 / Theorem 4.1).
 
-The reference is an independent, deliberately plain implementation of DESIGN.md's formulas
+The reference is an independent, deliberately plain implementation of the paper's formulas
 (ln((1+e)/(1−e)) rather than atanh, explicit diagonal matrices and a matrix inverse), and a
 closed-loop simulation of an uncertain first-order plant that the controller never sees.
 """
@@ -18,7 +18,7 @@ HYPOTHESIS = settings(max_examples=80, deadline=None)
 
 
 # --------------------------------------------------------------------------------------
-# Independent reference of DESIGN.md's law (valid inside the funnels)
+# Independent reference of the paper's law (valid inside the funnels)
 # --------------------------------------------------------------------------------------
 def _rho(e):
     return np.log((1.0 + e) / (1.0 - e))

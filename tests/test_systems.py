@@ -2,7 +2,7 @@
 
 Drake's own style: build a small system or diagram, FixValue its inputs on a context,
 evaluate output ports or time derivatives (or advance a short time with a Simulator), and
-compare with tolerances against independent computations: the formulas of DESIGN.md
+compare with tolerances against independent computations: the paper's formulas
 evaluated here by hand (with scipy.stats.ncx2 for the noncentral chi-square quantile), the
 pure-numpy core the systems wrap, or closed forms (e.g. the Rayleigh tail
 P(‖Z‖ ≥ R) = exp(−R²/2σ²) of a 2D Gaussian centred on the point).
@@ -197,7 +197,7 @@ def make_law(linear_zone: float = 0.0) -> TubeLaw:
 
 
 def reference_tube(center: np.ndarray, belief: ObstacleBelief, law: TubeLaw):
-    """ċ, r, q, d̂, θ from the formulas of DESIGN.md (n = 2), with scipy.stats.ncx2."""
+    """ċ, r, q, d̂, θ from the paper's formulas (n = 2), with scipy.stats.ncx2."""
     n = belief.dimension
     offset = center - belief.mean
     lam = np.sum(offset**2, axis=1) / belief.sigma**2
@@ -584,7 +584,7 @@ def test_controller_two_stages_dimension_3():
     controller.GetInputPort("plant_state").FixValue(context, np.concatenate([x1, x2]))
     u = controller.GetOutputPort("control").Eval(context)
 
-    # By hand from DESIGN.md: stage 1, then the box funnel of stage 2.
+    # By hand from the paper's formulas: stage 1, then the box funnel of stage 2.
     e1 = np.linalg.norm(x1 - center) / radius
     r2 = -1.5 * np.log((1.0 + e1) / (1.0 - e1)) * (x1 - center)
     gamma = (np.array([2.0, 1.5, 3.0]) - [0.2, 0.1, 0.3]) * np.exp(-np.array([1.0, 0.5, 2.0]) * t)

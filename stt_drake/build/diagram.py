@@ -443,7 +443,7 @@ def add_live_view(
 def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> SttDiagram:
     """The scenario's plant (from :data:`PLANT_BUILDERS`) and its STT loop (:func:`AddStt`)
     connected, and loggers on the plant output, tube, belief, diagnostics, control and
-    margins (DESIGN.md diagram). With a `meshcat`, the run is also drawn there live
+    margins (`stt-drake diagram` draws it). With a `meshcat`, the run is also drawn there live
     (:func:`add_live_view`)."""
     builder = DiagramBuilder()
     plant = PLANT_BUILDERS[type(scenario.plant)](builder, scenario)

@@ -2,7 +2,7 @@
 ``AddMultibodyPlantSceneGraph``).
 
 The loop is belief → tube → controller, with the invariant monitor reading the belief,
-the tube and the plant's output (DESIGN.md diagram). The caller owns the plant: it
+the tube and the plant's output (`stt-drake diagram` draws it). The caller owns the plant: it
 connects the returned `plant_state` input and `control` output, and the plant's output
 into `output` (the monitor's y).
 """

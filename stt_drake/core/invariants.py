@@ -1,4 +1,4 @@
-"""The guarantees every run checks (DESIGN.md, "Guarantees every run checks").
+"""The guarantees every run checks (README, "The guarantees every run checks").
 
 Pure numpy. A *margin* is positive when a guarantee holds with room to spare:
 

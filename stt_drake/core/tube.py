@@ -4,7 +4,7 @@ One call of :meth:`TubeLaw.evaluate` gives, for the tube centre c and the belief
 obstacles, the centre velocity ċ of Eq. (4), the radius r of Eq. (14) and
 per-obstacle diagnostics (q_j, d̂_j, θ_j).
 
-Fixes to the printed paper (see DESIGN.md):
+Fixes to the printed paper (README, "Design decisions"):
 * the attraction term is the signed cube root per component, k1·sign(η − c)|η − c|^{1/3};
 * the radius is the log-sum-exp soft-min r = −(1/ν) ln(e^{−ν r_max} + Σ_j e^{−ν d̂_j}),
   which is always ≤ min(r_max, min_j d̂_j); it stays > 0 only if ν > ln(n_o + 1)/r_min.

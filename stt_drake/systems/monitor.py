@@ -234,7 +234,7 @@ class InvariantMonitor(LeafSystem):
                 if recoveries.active or flags.any():
                     recoveries.update(t, flags, self.center_margins(context))
             if strict and message is not None:
-                # Failed(None, ...): passing a Python LeafSystem here segfaults (DRAKE_NOTES).
+                # Failed(None, ...): passing a Python LeafSystem here segfaults (pydrake 1.51).
                 return EventStatus.Failed(None, message)
             if watchdog is not None:
                 stop = watchdog.step(t)
