@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint install lock clean system-packages
+.PHONY: demo test test-fast lint install lock clean system-packages
 
 # pyproject.toml gives compatible ranges; requirements.lock pins the exact versions installed
 # here and in CI (.ci/run calls `make test`), so both stay reproducible.
@@ -37,10 +37,19 @@ lint: $(STAMP)
 # Drake may use the network only for Meshcat (localhost) and to *register* its package map:
 # with "meshcat" alone, constructing any multibody Parser fails offline (checked here), and
 # no test may download anything (a `package://drake_models` model would fail to load).
+PYTEST := DRAKE_ALLOW_NETWORK=meshcat:package_map MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist loadfile
+
+# Every test; the 25 slowest are listed at the end (CI keeps them in its log).
 test: $(STAMP) system-packages
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports
-	DRAKE_ALLOW_NETWORK=meshcat:package_map MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist loadfile
+	$(PYTEST) --durations=25
+
+# A maintainer's minute: everything but the slow, notebook and browser tests (< 90 s on 2 cores).
+test-fast: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/lint-imports
+	$(PYTEST) -m "not slow and not notebook and not browser" --durations=10
 
 # Graphviz (`stt-drake diagram`) and headless Chromium (the replay test) are Debian packages.
 system-packages:

@@ -37,7 +37,7 @@ import pytest
 import yaml
 from scipy.stats import ncx2
 
-from stt_drake.build import load_scenario, parse_scenario
+from stt_drake.assembly import load_scenario, parse_scenario
 from stt_drake.config import ScenarioError
 from stt_drake.run import RunResult
 

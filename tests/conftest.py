@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from stt_drake.build import load_scenario
+from stt_drake.assembly import load_scenario
 from stt_drake.run import RunResult, simulate
 
 DIAGRAMS = Path(__file__).resolve().parent.parent / "diagrams"
