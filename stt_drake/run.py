@@ -13,23 +13,20 @@ from pydrake.geometry import Meshcat
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 from pydrake.systems.framework import Diagram
 
-from stt_drake.build.diagram import SttDiagram, build_diagram
-from stt_drake.build.feasibility import scenario_warnings
-from stt_drake.build.guide import stall_rule
+from stt_drake.assembly.diagram import SttDiagram, build_diagram
+from stt_drake.assembly.feasibility import scenario_warnings
+from stt_drake.assembly.guide import stall_rule
 from stt_drake.config import AssumptionError, Scenario
 from stt_drake.config.assumptions import check_target_separation
 from stt_drake.core import backend
-from stt_drake.core.belief import GaussianBelief, ObstacleBelief, ObstacleTask
-from stt_drake.core.circulation import carry_circulation
-from stt_drake.core.control import FunnelController
 from stt_drake.core.invariants import (
     HOLDS_TOLERANCE,
     InvariantTracker,
     RecoveryTracker,
-    evaluate_invariants_packed,
     reach_story,
 )
 from stt_drake.core.progress import find_stalls
+from stt_drake.metrics import RunMetrics
 from stt_drake.runlog import RunLog, write_json
 from stt_drake.story import (
     belief_discontinuities,
@@ -48,10 +45,11 @@ _SUMMARY_LISTED = 3
 
 @dataclass
 class RunResult:
-    """A finished run: the metrics (the `metrics.json` contract) and the run log
-    (:class:`stt_drake.runlog.RunLog`, a mapping of the `log.npz` members)."""
+    """A finished run: the metrics (:class:`stt_drake.metrics.RunMetrics`, the
+    `metrics.json` contract) and the run log (:class:`stt_drake.runlog.RunLog`, a mapping
+    of the `log.npz` members)."""
 
-    metrics: dict[str, Any]
+    metrics: RunMetrics
     log: RunLog
     #: The plant's own summary lines (its `summary` hook, e.g. the arm's tasks and limits).
     plant_summary: list[str] = field(default_factory=list)
@@ -60,11 +58,11 @@ class RunResult:
     def success(self) -> bool:
         """The run ended normally, every guarantee held, the target was reached (every task
         of a sequence) and no plant limit was exceeded (exit code 0)."""
-        limits = self.metrics.get("limits", {}).values()
+        limits = self.metrics.plant.get("limits", {}).values()
         return bool(
-            self.metrics.get("stop_reason") is None
-            and self.metrics["holds"]
-            and self.metrics["reached"]
+            self.metrics.stop_reason is None
+            and self.metrics.holds
+            and self.metrics.reached
             and all(record["holds"] for record in limits)
         )
 
@@ -176,38 +174,11 @@ def scenario_simulator(diagram: Diagram, scenario: Scenario) -> Simulator:
 
 
 def load_kernels(scenario: Scenario, built: SttDiagram) -> float:
-    """Load (from numba's on-disk cache) or compile the compiled kernels a run of `scenario`
-    calls in its loop, before its clock starts: one tiny evaluation of each public core
-    function the Drake systems call, with the argument types they pass (numba specialises
-    on types, not values: the belief is unpacked from its port vector as the tube does,
-    which makes its means a strided view). Returns the seconds it took; 0.0 on the numpy
-    path, and about 0.0 once this process has loaded them.
-    """
-    if not backend.using_compiled():
-        return 0.0
-    start = time.perf_counter()
-    n = scenario.dimension
-    law = built.tube.law  # the law the run uses, built once with the diagram
-    vector = scenario.belief_at(0.0).to_vector()
-    task = ObstacleTask.of(scenario.obstacles)
-    table = task.table()
-    belief = ObstacleBelief.of(GaussianBelief.from_vector(vector, n), task)
-    center = np.asarray(scenario.start, dtype=float)
-    axes = np.zeros((belief.count, 3)) if n == 3 else None
-    evaluation = law.evaluate_packed(center, vector, table, circulation=axes)  # ċ and r
-    if scenario.tube.update_rate_hz > 0.0:  # the fixed-rate tube's update
-        law.advance(center, belief, 1.0 / scenario.tube.update_rate_hz, None, axes)
-        law.switching_gains(center, belief)
-    if axes is not None:
-        carry_circulation(axes, center, belief.mean, evaluation.theta > 0.0, law.target - center)
-    tube = np.append(center, law.r_max)  # any finite radius: only the types matter
-    controller = FunnelController(kappa=[1.0])  # the kernels' types do not depend on stages
-    controller.control_from_tube(0.0, center, tube)  # the STT controller
-    controller.evaluate(0.0, center, center, float(tube[-1]))  # the arm's stage one
-    evaluate_invariants_packed(center, tube, vector, table, law.r_min)  # the monitor's margins
-    if built.belief_source is not None:  # the scripted belief's table (not with a tracker)
-        built.belief_source.belief_vector(0.0)
-    return time.perf_counter() - start
+    """Compile, or load from numba's on-disk cache, every compiled kernel for the scenario's
+    dimension before the run's clock starts (:func:`stt_drake.core.backend.warm_up`; `built`
+    is not needed). Returns the seconds it took: 0.0 on the numpy path, about 0.0 once
+    this process has loaded them."""
+    return backend.warm_up(scenario.dimension)
 
 
 def simulate(
@@ -301,38 +272,38 @@ def simulate(
     if not reached and stop_reason is None and stalls and stalls[-1]["end_s"] is None:
         worst = worst_margin_so_far(tracker)
         stop_reason = f"{stall_cause(stalls[-1])}; worst margin so far: {worst}"
-    metrics = {
-        "scenario": scenario.name,
-        "reached": reached,
-        "t_reach": t_reach,
-        "holds": tracker.holds,
-        "sim_time_s": sim_time,
-        "wall_time_s": wall_time,
-        "compile_time_s": compile_time,
-        "realtime_factor": sim_time / wall_time if wall_time > 0 else None,
-        "steps": simulator.get_num_steps_taken(),
-        "holds_tolerance": HOLDS_TOLERANCE,
-        "stop_reason": stop_reason,
-        "strict_stop": stopped,
-        "first_violation": tracker.first_violation,
-        "invariants": no_obstacle_notes(tracker.as_dict(), len(scenario.obstacles)),
-        "reach": reach.as_dict(),
-        "warnings": warnings,
-        "assumptions": assumptions + separation_after_entry(log, t_reach),
-        "belief_discontinuities": belief_discontinuities(log),
-        "recovery": recoveries.episodes(),
-        "stalls": stalls,
-        "step_rate": {
+    metrics = RunMetrics(
+        scenario=scenario.name,
+        reached=reached,
+        t_reach=t_reach,
+        holds=tracker.holds,
+        sim_time_s=sim_time,
+        wall_time_s=wall_time,
+        compile_time_s=compile_time,
+        realtime_factor=sim_time / wall_time if wall_time > 0 else None,
+        steps=simulator.get_num_steps_taken(),
+        holds_tolerance=HOLDS_TOLERANCE,
+        stop_reason=stop_reason,
+        strict_stop=stopped,
+        first_violation=tracker.first_violation,
+        invariants=no_obstacle_notes(tracker.as_dict(), len(scenario.obstacles)),
+        reach=reach.as_dict(),
+        warnings=warnings,
+        assumptions=assumptions + separation_after_entry(log, t_reach),
+        belief_discontinuities=belief_discontinuities(log),
+        recovery=recoveries.episodes(),
+        stalls=stalls,
+        step_rate={
             "limit_steps_per_s": watchdog.limit,
             "window_steps": watchdog.window_steps,
             "max_window_steps_per_s": watchdog.max_rate,
         },
-        "obstacles": obstacle_report(log, scenario),
-        "tracks": track_consistency(
+        obstacles=obstacle_report(log, scenario),
+        tracks=track_consistency(
             log, 0.95 if scenario.perception is None else scenario.perception.nis_confidence
         ),
-        **plant_metrics,
-    }
+        plant=plant_metrics,
+    )
     plant_summary = built.plant_summary(metrics) if built.plant_summary is not None else []
     return RunResult(metrics, log, plant_summary)
 
@@ -344,7 +315,7 @@ def write_outputs(result: RunResult, out_dir: Path, figures: bool = True) -> lis
     metrics.json is strict JSON (:func:`stt_drake.runlog.strict_json`): a non-finite
     value (an infinite margin, σ = ∞) is ``null``, named in its ``"non_finite"`` object."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    metrics_path = write_json(out_dir / "metrics.json", result.metrics)
+    metrics_path = write_json(out_dir / "metrics.json", result.metrics.as_dict())
     log = RunLog.of(result.log)
     written = [metrics_path, log.save(out_dir / "log.npz")]
     if figures and log.samples >= 2:

@@ -3,9 +3,8 @@ gradient and the quantile radius of a Gaussian obstacle O ~ N(μ, Σ), for n = 2
 
 The method (saddle-point contour integration of the Laplace inversion integral) and its
 derivation are in :mod:`stt_drake.core.anisotropic`; this module is the same arithmetic as
-scalar loops, one native call per point. It imports nothing of the package (numba's cache
-freezes module globals; the numpy reference keeps its own copy of the constants and a test
-checks they agree).
+scalar loops, one native call per point. Its constants are those of
+:mod:`stt_drake.core.constants`, shared with the numpy reference.
 
 Inputs: the caller decomposes Σ = V diag(variances) Vᵀ once per obstacle and passes
 
@@ -26,79 +25,29 @@ import math
 import numpy as np
 from numba import njit
 
-_JIT = {"cache": True, "error_model": "numpy", "nogil": True}
+from stt_drake.core.anisotropic_contour import path_table
+from stt_drake.core.backend import jit_options
+from stt_drake.core.constants import (
+    ANISOTROPIC_QUANTILE_MAX_ITERATIONS,
+    ANISOTROPIC_QUANTILE_RTOL,
+    NEWTON_MAX_ITERATIONS,
+    PATH_STEP,
+    SADDLE_MAX_ITERATIONS,
+    SERIES_BELOW,
+    STEP_ACCEPT,
+    UNDERFLOW_EXPONENT,
+)
+
+_JIT = jit_options()
 #: The small helpers of the contour loop are inlined into it (~15 % of its time).
 _INLINE = {**_JIT, "inline": "always"}
 
-#: The contour is traversed with a parameter u: trapezoid step h in u, nodes u_k = (k − ½)h,
-#: mapped to τ = u + γu³ (γ = :data:`PATH_STRETCH`: nodes sparser where the weight e^{−τ²} is
-#: small), and stopped once τ² > :data:`PATH_END` (the rest is below e^{−30}).
-PATH_STEP = 0.175
-PATH_STRETCH = 0.03
-PATH_END = 30.0
-#: Bend of the contour (see :func:`path_table`): Im ψ = −β τ² tanh(τ/τ_c) along it.
-PATH_BEND = 0.6
-PATH_BEND_SCALE = 1.0
-#: The iteration at a node stops after a step u ≤ this fraction of |δ|: the step's error is
-#: of order u⁴ < 2e-15.
-STEP_ACCEPT = 2e-4
-NEWTON_MAX_ITERATIONS = 60
-#: Below this |z| the saddle-point value uses the series of log(1 − z) + z/(1 − z).
-_SERIES_BELOW = 0.1
-#: Saddle point and quantile iterations.
-SADDLE_MAX_ITERATIONS = 200
 #: The saddle iteration stops once |log K'(ŝ)| is at this rounding level of K' itself (its
 #: Newton steps would then be rounding noise, which can cycle between two neighbouring x).
 _SADDLE_RESIDUAL = 1e-15
-QUANTILE_RTOL = 1e-5
-QUANTILE_MAX_ITERATIONS = 60
-#: e^{Φ̂} underflows to 0 below this Φ̂ (and erfc(√−Φ̂) too): the small tail is exactly 0.
-_UNDERFLOW = -745.0
 #: The quantile iteration returns the root of its fifth-order model once the model's
 #: estimated truncation error (relative, in R²) is below this (see :func:`quantile_radius`).
 _QUANTILE_REMAINDER = 1e-15
-
-
-def path_table(
-    step: float = PATH_STEP,
-    stretch: float = PATH_STRETCH,
-    end: float = PATH_END,
-    bend: float = PATH_BEND,
-    scale: float = PATH_BEND_SCALE,
-) -> np.ndarray:
-    """The contour at the nodes u_k = (k − ½)·step with τ(u_k)² ≤ end, τ = u + stretch·u³,
-    as complex rows [T², dT²/du, d²T²/du², d³T²/du³, T, dT/du, e^{−T²}] (shape (7, nodes))
-    for T² = τ² + i·bend·τ² tanh(τ/scale)."""
-    count = 1
-    while True:
-        u_next = (count + 0.5) * step
-        if (u_next + stretch * u_next**3) ** 2 > end:
-            break
-        count += 1
-    u = (np.arange(1, count + 1) - 0.5) * step
-    tau = u + stretch * u**3
-    tau1 = 1.0 + 3.0 * stretch * u * u
-    tau2 = 6.0 * stretch * u
-    tau3 = 6.0 * stretch
-    th = np.tanh(tau / scale)
-    se = 1.0 - th * th
-    f0 = tau * tau * th
-    f1 = 2.0 * tau * th + tau * tau * se / scale
-    f2 = 2.0 * th + 4.0 * tau * se / scale - 2.0 * tau * tau * th * se / scale**2
-    f3 = (
-        6.0 * se / scale
-        - 12.0 * tau * th * se / scale**2
-        + (4.0 * tau * tau * th * th * se - 2.0 * tau * tau * se * se) / scale**3
-    )
-    g0 = tau * tau + 1j * bend * f0  # T² and its τ-derivatives
-    g1 = 2.0 * tau + 1j * bend * f1
-    g2 = 2.0 + 1j * bend * f2
-    g3 = 1j * bend * f3
-    d1 = g1 * tau1  # ... and its u-derivatives
-    d2 = g2 * tau1**2 + g1 * tau2
-    d3 = g3 * tau1**3 + 3.0 * g2 * tau1 * tau2 + g1 * tau3
-    root = np.sqrt(g0)
-    return np.array([g0, d1, d2, d3, root, d1 / (2.0 * root), np.exp(-g0)])
 
 
 _TABLE = path_table()
@@ -118,7 +67,7 @@ _POLE_WEIGHT = _WEIGHT * _TP
 def log_gap(z: float) -> float:
     """G(z) = log(1 − z) + z/(1 − z) ≥ 0 for real z < 1, without cancellation near 0
     (series Σ_{k≥2} (k − 1) z^k / k)."""
-    if abs(z) < _SERIES_BELOW:
+    if abs(z) < SERIES_BELOW:
         total = 0.0
         power = z * z
         k = 2.0
@@ -339,7 +288,7 @@ def _tail_at(
         k3 += rho[i] ** 3 + 6.0 * rho[i] * rho[i] * a[i]
         phi_hat -= 0.5 * log_gap(z) + 0.5 * nu[i] * z * z / (kappa[i] * t_hat[i] * t_hat[i])
     upper = s_hat > 0.0
-    if phi_hat < _UNDERFLOW:
+    if phi_hat < UNDERFLOW_EXPONENT:
         return 0.0, upper, 0.0, 0.0, 0.0, 0.0, 0.0
     w = math.sqrt(-phi_hat)
     pole = complex(0.0, w if upper else -w)
@@ -596,8 +545,8 @@ def quantile_radius(variances: np.ndarray, offset: np.ndarray, epsilon: float) -
     root is returned without another evaluation when the model's truncation error,
     estimated as max(t₅, t₄ρ)·ρ from its terms t_k = |g_k h^k/(k! g₁)| and their largest
     ratio ρ, is below 1e-15 (taking t₄ρ² covers a t₅ that is small by cancellation), or,
-    as before, once a step is below QUANTILE_RTOL (error ~1e-25 then). From the ~1e-3
-    start that is one evaluation for most points and two for nearly all the rest, where
+    as before, once a step is below ANISOTROPIC_QUANTILE_RTOL (error ~1e-25 then). From the
+    ~1e-3 start that is one evaluation for most points and two for nearly all the rest, where
     Halley's iteration needed two or three.
     """
     if not (epsilon > 0.0 and epsilon < 1.0):
@@ -632,7 +581,7 @@ def quantile_radius(variances: np.ndarray, offset: np.ndarray, epsilon: float) -
     if not y > 0.0:
         y = 0.5 * (y_lo + y_hi)
     sign = -1.0 if upper_tail else 1.0  # d prob/dt = sign·density
-    for iteration in range(QUANTILE_MAX_ITERATIONS):
+    for iteration in range(ANISOTROPIC_QUANTILE_MAX_ITERATIONS):
         kappa = variances / y
         nu = offset * offset / y
         x = x_start if iteration == 0 and y == y_start else saddle_log_t(kappa, nu)
@@ -695,7 +644,7 @@ def quantile_radius(variances: np.ndarray, offset: np.ndarray, epsilon: float) -
         if not (y_lo <= new <= y_hi):
             new = 0.5 * (y_lo + y_hi)
             accept = False
-        if accept or abs(new - y) <= QUANTILE_RTOL * y:
+        if accept or abs(new - y) <= ANISOTROPIC_QUANTILE_RTOL * y:
             return math.sqrt(new)
         if y_hi - y_lo <= 1e-15 * y_hi:
             return math.sqrt(0.5 * (y_lo + y_hi))

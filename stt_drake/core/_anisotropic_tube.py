@@ -1,9 +1,10 @@
-"""Compiled tube law for obstacles with a full covariance, O_j ~ N(μ_j, Σ_j) (n = 2, 3).
+"""Per-obstacle terms of the compiled tube law for obstacles with a full covariance,
+O_j ~ N(μ_j, Σ_j) (n = 2, 3): q_j, d̂_j and the direction ∇̂q_j, with the pruning bounds.
 
 The law, its reduction to the paper's and the pruning bounds are documented in
 :mod:`stt_drake.core.anisotropic_tube` (with the numpy reference of the per-obstacle
-terms); this module is the one-call kernel the Drake system runs, selected by
-:mod:`stt_drake.core.backend`.
+terms); the driver that runs these terms for every obstacle (the same as for isotropic
+beliefs) is :func:`stt_drake.core._tube.tube_step`.
 """
 
 from __future__ import annotations
@@ -13,20 +14,14 @@ import math
 import numpy as np
 from numba import njit
 
-# Numba's cache keys each kernel on its own file only: a change to a callee in _anisotropic.py
-# is not seen by the cached anisotropic_tube_step until this file changes too (or the
-# __pycache__/*.nbi index is removed). Last callee change: the quantile's fifth-order step.
 from stt_drake.core._anisotropic import avoid_gradient, quantile_radius
-from stt_drake.core._kernels import (
-    _attraction,
-    _finish_rate,
-    _obstacle_terms,
-    ndtr,
-    ndtri,
-    soft_min_radius,
-)
+from stt_drake.core._kernels import ndtr, ndtri
+from stt_drake.core.backend import jit_options
 
-_JIT = {"cache": True, "error_model": "numpy", "nogil": True}
+_JIT = jit_options()
+#: The pruning bounds are inlined into the driver's loop (numba IR inlining: no call per
+#: obstacle).
+_INLINE = {**_JIT, "inline": "always"}
 
 #: Jacobi sweeps stop when every off-diagonal entry is below this fraction of the largest
 #: diagonal one: the eigenvalues are then exact to a few ulps of λ_max.
@@ -90,113 +85,73 @@ def projected_sigma(offset: np.ndarray, covariance: np.ndarray, distance: float)
     return math.sqrt(max(total, 0.0)) / distance
 
 
+@njit(**_INLINE)
+def anisotropic_bounds(
+    distance: float, sigma: float, radius: float, epsilon: float, r_min: float, prune_above: float
+) -> tuple[float, float]:
+    """The pruning lower bounds of obstacle j (full covariance) at distance ‖c − μ_j‖, with
+    s = `sigma` = :func:`projected_sigma`: q_j ≥ Φ((‖c − μ_j‖ − r_o − r_min)/s) and
+    d̂_j ≥ max(‖c − μ_j‖ − s Φ⁻¹(ε), 0) − r_o (NaN where prune_above = −∞: d̂ not wanted).
+    Where q's bound exceeds p_d_j and d̂'s exceeds `prune_above`, they are the obstacle's
+    terms (:func:`anisotropic_obstacle` is not needed). Scalars only: a call costs no
+    reference counting."""
+    q_lower = ndtr((distance - (radius + r_min)) / sigma)
+    if prune_above == -math.inf:
+        return q_lower, math.nan
+    return q_lower, max(distance - sigma * ndtri(epsilon), 0.0) - radius
+
+
 @njit(**_JIT)
-def anisotropic_tube_step(
-    center: np.ndarray,
-    mean: np.ndarray,
+def anisotropic_obstacle(
+    offset: np.ndarray,
+    distance: float,
     covariance: np.ndarray,
-    radius: np.ndarray,
-    epsilon: np.ndarray,
-    p_d: np.ndarray,
-    k2: np.ndarray,
-    k3: np.ndarray,
-    circulation: np.ndarray,
-    constants: np.ndarray,
-) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
-    """:meth:`stt_drake.core.tube.TubeLaw.evaluate` for a belief with covariances in one
-    call (the rules and bounds of :mod:`stt_drake.core.anisotropic_tube`, whose
-    :func:`~stt_drake.core.anisotropic_tube.obstacle_terms` is the numpy reference of the
-    per-obstacle part): `covariance` (m, n, n); `constants` laid out as
-    :data:`stt_drake.core._kernels.TUBE_CONSTANTS` followed by η.
+    radius: float,
+    epsilon: float,
+    p_d: float,
+    r_min: float,
+    q_lower: float,
+    d_lower: float,
+    prune_above: float,
+    along: np.ndarray,
+    unit: np.ndarray,
+) -> tuple[float, float, bool]:
+    """Obstacle j's terms for a full covariance Σ_j (`covariance`, n × n) at `offset`
+    = c − μ_j (`distance` its norm) where a bound of :func:`anisotropic_bounds` (`q_lower`,
+    `d_lower`) does not decide, the rules of :func:`stt_drake.core.anisotropic_tube.
+    obstacle_terms`: the saddle-point d̂_j (Eq. (8)) where d_lower ≤ `prune_above`, the
+    saddle-point q_j (Eq. (5)) where q_lower ≤ p_d_j, and there, if q_j ≤ p_d_j, `unit`
+    = ∇̂q_j (its unit vector; the isotropic law's (c − μ_j)/‖c − μ_j‖ where q is
+    stationary). `along` (n,) is a work buffer.
 
     Returns:
-        (ċ, r, q, d̂, θ); q_j and d̂_j are the pruning lower bounds where those decided.
+        (q_j, d̂_j, whether obstacle j acts on ċ: q_j ≤ p_d_j); q_j and d̂_j are the bounds
+        where those decided.
     """
-    k1 = constants[0]
-    r_min = constants[1]
-    r_max = constants[2]
-    nu = constants[3]
-    linear_zone = constants[4]
-    prune_above = constants[5]
-    max_speed = constants[6]
-    target = constants[7:]
-    count, n = mean.shape
-    q = np.empty(count)
-    d_hat = np.empty(count)
-    theta = np.zeros(count)
-    goal = np.empty(n)
-    rate = np.empty(n)
-    escape = np.zeros(n)
-    share = 0.0
-    no_axis = np.empty(0)
-    _attraction(center, target, k1, linear_zone, goal, rate)
-    offset = np.empty(n)
-    direction = np.empty(n)
-    m = np.empty(n)
-    variances = np.empty(n)
-    axes = np.empty((n, n))
-    along = np.empty(n)  # the offset in the eigenbasis, axesᵀ(c − μ_j)
-    for j in range(count):
-        distance = 0.0
-        for i in range(n):
-            offset[i] = center[i] - mean[j, i]
-            distance += offset[i] * offset[i]
-        distance = math.sqrt(distance)
-        sigma_u = projected_sigma(offset, covariance[j], distance)
-        reach = radius[j] + r_min
-        eps = epsilon[j]
-        q_lower = ndtr((distance - reach) / sigma_u)
-        d_lower = max(distance - sigma_u * ndtri(eps), 0.0) - radius[j]
-        need_q = q_lower <= p_d[j]
-        need_d = prune_above != -math.inf and d_lower <= prune_above
-        if need_q or need_d:
-            variances, axes = symmetric_eigen(covariance[j])
-            along[:] = 0.0
-            for i in range(n):
-                for k in range(n):
-                    along[k] += axes[i, k] * offset[i]
-        if prune_above == -math.inf:
-            d_hat[j] = math.nan
-        elif need_d:
-            d_hat[j] = quantile_radius(variances, along, eps) - radius[j]
-        else:
-            d_hat[j] = d_lower
-        if not need_q:
-            q[j] = q_lower
-            continue
-        qj, gradient = avoid_gradient(variances, along, reach)
-        q[j] = qj
-        if qj > p_d[j]:
-            continue
-        size = 0.0  # ∇_c q_j = axes·gradient; its unit vector is the direction of m_j
-        for i in range(n):
-            direction[i] = 0.0
-            for k in range(n):
-                direction[i] += axes[i, k] * gradient[k]
-            size += direction[i] * direction[i]
-        size = math.sqrt(size)
-        for i in range(n):
-            if size > 0.0:
-                direction[i] /= size
-            else:  # q stationary (c = μ_j): the isotropic law's direction, or none
-                direction[i] = offset[i] / distance if distance > 0.0 else 0.0
-        axis = circulation[j] if circulation.shape[0] == count else no_axis
-        theta[j], weight = _obstacle_terms(
-            rate,
-            escape,
-            m,
-            direction,
-            distance,
-            qj,
-            eps,
-            p_d[j],
-            k2,
-            k3,
-            j,
-            axis,
-            goal,
-            max_speed,
-        )
-        share = max(share, weight)
-    _finish_rate(rate, share, escape, goal, max_speed)
-    return rate, soft_min_radius(d_hat, r_max, nu), q, d_hat, theta
+    n = offset.shape[0]
+    variances, axes = symmetric_eigen(covariance)
+    along[:] = 0.0  # the offset in the eigenbasis, axesᵀ(c − μ_j)
+    for i in range(n):
+        for k in range(n):
+            along[k] += axes[i, k] * offset[i]
+    d_hat = d_lower
+    if d_lower <= prune_above:
+        d_hat = quantile_radius(variances, along, epsilon) - radius
+    if not q_lower <= p_d:  # the bound decided q (a NaN bound too)
+        return q_lower, d_hat, False
+    q, gradient = avoid_gradient(variances, along, radius + r_min)
+    if q > p_d:
+        return q, d_hat, False
+    size = 0.0  # ∇_c q_j = axes·gradient; its unit vector is the direction of m_j
+    for i in range(n):
+        unit[i] = 0.0
+        for k in range(n):
+            unit[i] += axes[i, k] * gradient[k]
+        size += unit[i] * unit[i]
+    size = math.sqrt(size)
+    for i in range(n):
+        if size > 0.0:
+            unit[i] /= size
+        else:  # q stationary (c = μ_j): the isotropic law's direction, or none
+            unit[i] = offset[i] / distance if distance > 0.0 else 0.0
+    return q, d_hat, True

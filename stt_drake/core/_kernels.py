@@ -1,5 +1,6 @@
-"""Compiled (numba) kernels for the hot path: one call per tube step, per controller
-evaluation and per invariant check.
+"""Compiled (numba) kernels for the hot path: the noncentral chi law (q_j of Eq. (5), d̂_j of
+Eq. (8)), one call per controller evaluation, per invariant check and per scripted belief.
+The tube law's kernels, which call these, are :mod:`stt_drake.core._tube`.
 
 Why a second implementation exists
 ----------------------------------
@@ -20,7 +21,8 @@ numpy path is fastest with too; they are a few lines each.
 
 numba (rather than Cython/C++): it is a pinned dependency already, needs no compiler
 toolchain at install time, and with ``cache=True`` compiles once per machine into
-``__pycache__`` (a few seconds on first use; importing :mod:`stt_drake` does not import
+a cache folder keyed by the kernels' sources (:func:`stt_drake.core.backend.jit_options`;
+a few seconds on first use; importing :mod:`stt_drake` does not import
 this module — :func:`stt_drake.core.backend.compiled` loads it on first need).
 ``STT_DRAKE_PURE_NUMPY=1`` (or :func:`stt_drake.core.backend.pure_numpy`) selects the reference
 path instead.
@@ -37,30 +39,23 @@ import math
 
 import numpy as np
 from numba import njit
-from scipy import special
 
-_JIT = {"cache": True, "error_model": "numpy", "nogil": True}
+from stt_drake.core.backend import jit_options
+from stt_drake.core.constants import (
+    CHI_QUANTILE_MAX_ITERATIONS,
+    CHI_QUANTILE_RTOL,
+    SF_IS_ONE_BELOW,
+)
 
-#: :data:`stt_drake.core.tube.BOUNDARY_LAYER` (repeated here: the kernels import nothing of
-#: the package, and numba's cache freezes module globals; a test checks they agree).
-BOUNDARY_LAYER = 0.1
-#: :data:`stt_drake.core.tube.LAYER_STEP` (the same, for the same reason).
-LAYER_STEP = 0.25
+_JIT = jit_options()
 
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 _INV_SQRT_2 = 1.0 / math.sqrt(2.0)
-#: Φ⁻¹(2⁻⁵⁴): for b − a at or below this, 1 − sf ≤ Φ(b − a) ≤ 2⁻⁵⁴ (‖Z‖ ≥ Z·e), so the
-#: survival function is 1 to double precision (1 − 2⁻⁵⁴ rounds to 1).
-SF_IS_ONE_BELOW = float(special.ndtri(2.0**-54))
 #: Below this offset a = ‖x − μ‖/σ the law is the central one to double precision (the
 #: difference is O(a²)); treating it as 0 avoids dividing by a denormal.
 _NEGLIGIBLE_OFFSET = 1e-150
 #: Below this ab only the first term of each Bessel series is visible in double precision.
 _TINY_ARGUMENT = 1e-30
-#: Halley iterations of the quantile stop when the last step is below this fraction of s.
-QUANTILE_RTOL = 1e-14
-#: Largest number of quantile iterations (the bracket halves at least every other one).
-QUANTILE_MAX_ITERATIONS = 200
 #: Rescaling threshold of the backward Bessel recurrence.
 _BIG = 1e200
 
@@ -410,7 +405,7 @@ def chi_isf(eps: float, a: float, n: int) -> float:
     For ε > 1/2 the residual is (1 − ε) − cdf(s), for the lower tail's relative accuracy.
     Every evaluation shrinks the bracket; a step that leaves it is replaced by that bracket
     end (once) or by bisection, so the iteration cannot diverge. Converged when a step is
-    below QUANTILE_RTOL·s.
+    below CHI_QUANTILE_RTOL·s.
     """
     if math.isnan(eps) or math.isnan(a):
         return math.nan
@@ -431,7 +426,7 @@ def chi_isf(eps: float, a: float, n: int) -> float:
     if not (s > lo and s < hi):
         s = 0.5 * (lo + hi)
     tried_lo = tried_hi = False
-    for _ in range(QUANTILE_MAX_ITERATIONS):
+    for _ in range(CHI_QUANTILE_MAX_ITERATIONS):
         sf, cdf, pdf, dlog = chi_sf_pdf(s, a, n)
         if series:
             g = delta - chi_cdf_series(s, a, n)
@@ -451,7 +446,7 @@ def chi_isf(eps: float, a: float, n: int) -> float:
             denominator = 1.0 + 0.5 * step * dlog
             if denominator > 0.5:
                 step /= denominator  # Halley
-            if abs(step) <= QUANTILE_RTOL * s:
+            if abs(step) <= CHI_QUANTILE_RTOL * s:
                 return s + step
             new = s + step
         if not (new > lo and new < hi):
@@ -488,7 +483,7 @@ def chi_isf_array(eps: np.ndarray, a: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-# --------------------------------------------------------------------------- tube step
+# --------------------------------------------------------------------------- geometry
 @njit(**_JIT)
 def _distance(point: np.ndarray, mean: np.ndarray, j: int) -> float:
     total = 0.0
@@ -496,614 +491,6 @@ def _distance(point: np.ndarray, mean: np.ndarray, j: int) -> float:
         d = point[i] - mean[j, i]
         total += d * d
     return math.sqrt(total)
-
-
-@njit(**_JIT)
-def _add_null_space(
-    rate: np.ndarray, m: np.ndarray, goal: np.ndarray, circulation: np.ndarray, weight: float
-) -> None:
-    """rate += weight·v, v ⟂ m with |v| = |m|
-    (:func:`stt_drake.core.circulation.null_space_direction`): n = 2, m rotated by +90°;
-    n ≥ 3, along ω × m for a chosen circulation axis ω (zero: not chosen), else the part of
-    the goal direction orthogonal to m, else of e_{n−1}, else of
-    e_0 (the first whose orthogonal part is not degenerate)."""
-    n = m.shape[0]
-    if n == 1:
-        return
-    if n == 2:
-        rate[0] -= weight * m[1]
-        rate[1] += weight * m[0]
-        return
-    norm_m = 0.0
-    for i in range(n):
-        norm_m += m[i] * m[i]
-    norm_m = math.sqrt(norm_m)
-    scale = norm_m if norm_m > 0.0 else 1.0
-    if n == 3 and circulation.shape[0] == 3:
-        cx = circulation[1] * m[2] - circulation[2] * m[1]
-        cy = circulation[2] * m[0] - circulation[0] * m[2]
-        cz = circulation[0] * m[1] - circulation[1] * m[0]
-        length = math.sqrt(cx * cx + cy * cy + cz * cz)
-        if length > CIRCULATION_MIN_SINE * scale:
-            factor = weight * norm_m / length
-            rate[0] += factor * cx
-            rate[1] += factor * cy
-            rate[2] += factor * cz
-            return
-    candidate = np.empty(n)
-    for which in range(3):
-        if which == 0:
-            size = 0.0
-            for i in range(n):
-                candidate[i] = goal[i]
-                size += goal[i] * goal[i]
-            size = math.sqrt(size)
-        else:
-            candidate[:] = 0.0
-            candidate[n - 1 if which == 1 else 0] = 1.0
-            size = 1.0
-        dot = 0.0
-        for i in range(n):
-            dot += candidate[i] * m[i] / scale
-        length = 0.0
-        for i in range(n):
-            o = candidate[i] - dot * m[i] / scale
-            length += o * o
-        length = math.sqrt(length)
-        if length > 1e-6 * max(size, 1e-300):
-            factor = weight * norm_m / length
-            for i in range(n):
-                rate[i] += factor * (candidate[i] - dot * m[i] / scale)
-            return
-
-
-#: A circulation axis ω is used while |ω × m̂| exceeds this (ω nearly parallel to m̂ gives
-#: no usable direction; the goal-based rule takes over).
-CIRCULATION_MIN_SINE = 1e-3
-
-#: Layout of the `constants` array of :func:`tube_step`: k1, r_min, r_max, ν, linear zone δ,
-#: prune_above, max_center_speed, then the target η (n).
-TUBE_CONSTANTS = (
-    "k1",
-    "r_min",
-    "r_max",
-    "nu",
-    "linear_zone",
-    "prune_above",
-    "max_center_speed",
-)
-
-
-@njit(**_JIT)
-def period_avoid_probability(
-    distance: float, sigma: float, radius: float, reach: float, spread: float, n: int
-) -> float:
-    """Lower bound of P(‖x − O‖ ≥ radius) over the beliefs reachable within a horizon
-    (:func:`stt_drake.core.probability.period_avoid_probability`): the offset shrinks by
-    `reach` and the radius grows by spread·(distance + reach + radius)."""
-    offset = distance - reach
-    if offset < 0.0:
-        offset = 0.0
-    grown = radius + spread * (distance + reach + radius)
-    return chi_sf(grown / sigma, offset / sigma, n)
-
-
-@njit(**_JIT)
-def tube_step(
-    center: np.ndarray,
-    mean: np.ndarray,
-    sigma: np.ndarray,
-    radius: np.ndarray,
-    epsilon: np.ndarray,
-    p_d: np.ndarray,
-    k2: np.ndarray,
-    k3: np.ndarray,
-    reach: np.ndarray,
-    spread: np.ndarray,
-    circulation: np.ndarray,
-    constants: np.ndarray,
-) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
-    """One tube-law evaluation (:meth:`stt_drake.core.tube.TubeLaw.evaluate`) in one pass.
-
-    Per obstacle j: q_j (Eq. (5); with `reach`/`spread` the period lower bound of
-    :func:`period_avoid_probability`, empty arrays = exact), d̂_j (Eq. (8), always at the
-    exact belief; the quantile is skipped where the bound σ(a − Φ⁻¹(ε)) − r_o already
-    exceeds `prune_above`, and that bound is returned), θ_j, m_j, v_j; then ċ
-    (Eq. (4)) over the obstacles with q_j > ε_j, saturated at max_center_speed, blended
-    with the escape velocity by the largest boundary-layer weight w (ċ = (1 − w)·ċ_law +
-    w·ċ_escape; ċ_escape = max_center_speed along Σ_j w_j (c − μ_j)/‖c − μ_j‖, w = 1 at
-    and below an ε level set: the recovery); and the soft-min radius (Eq. (14)). `k2`, `k3` hold one
-    gain per obstacle or a single one; `circulation` (m, 3) the chosen axes ω_j in 3D (or
-    empty); `constants` is laid out as :data:`TUBE_CONSTANTS` followed by η (few
-    arguments: numba's dispatch costs per argument).
-
-    Returns:
-        (ċ, r, q, d̂, θ).
-    """
-    k1 = constants[0]
-    r_min = constants[1]
-    r_max = constants[2]
-    nu = constants[3]
-    linear_zone = constants[4]
-    prune_above = constants[5]
-    max_speed = constants[6]
-    target = constants[7:]
-    count, n = mean.shape
-    inflated = reach.shape[0] == count
-    q = np.empty(count)
-    d_hat = np.empty(count)
-    theta = np.zeros(count)
-    goal = np.empty(n)
-    rate = np.empty(n)
-    escape = np.zeros(n)
-    share = 0.0  # the largest boundary-layer weight (tube.boundary_layer_weights)
-    no_axis = np.empty(0)
-    _attraction(center, target, k1, linear_zone, goal, rate)
-    unit = np.empty(n)
-    m = np.empty(n)
-    for j in range(count):
-        s = sigma[j]
-        distance = _distance(center, mean, j)
-        a = distance / s
-        if inflated:
-            qj = period_avoid_probability(distance, s, radius[j] + r_min, reach[j], spread[j], n)
-        else:
-            qj = chi_sf((radius[j] + r_min) / s, a, n)
-        q[j] = qj
-        eps = epsilon[j]
-        if prune_above == -math.inf:  # ċ, q, θ only: d̂ (and so r) not wanted
-            d_hat[j] = math.nan
-        else:
-            lower = s * max(a - ndtri(eps), 0.0) - radius[j]
-            if lower > prune_above:
-                d_hat[j] = lower
-            else:
-                d_hat[j] = s * chi_isf(eps, a, n) - radius[j]
-        if qj <= p_d[j]:  # ∇̂q_j = (c − μ_j)/‖c − μ_j‖ for Σ_j = σ_j² I
-            for i in range(n):
-                unit[i] = (center[i] - mean[j, i]) / distance if distance > 0.0 else 0.0
-            axis = circulation[j] if circulation.shape[0] == count else no_axis
-            theta[j], weight = _obstacle_terms(
-                rate,
-                escape,
-                m,
-                unit,
-                distance,
-                qj,
-                eps,
-                p_d[j],
-                k2,
-                k3,
-                j,
-                axis,
-                goal,
-                max_speed,
-            )
-            share = max(share, weight)
-    _finish_rate(rate, share, escape, goal, max_speed)
-    return rate, soft_min_radius(d_hat, r_max, nu), q, d_hat, theta
-
-
-@njit(**_JIT)
-def _attraction(
-    center: np.ndarray,
-    target: np.ndarray,
-    k1: float,
-    linear_zone: float,
-    goal: np.ndarray,
-    rate: np.ndarray,
-) -> None:
-    """goal = η − c and rate = the attraction k1·∛(η − c) of Eq. (4), linear inside the
-    zone |e_i| < linear_zone (the tube laws' first term)."""
-    for i in range(center.shape[0]):
-        e = target[i] - center[i]
-        goal[i] = e
-        if linear_zone > 0.0 and abs(e) < linear_zone:
-            rate[i] = k1 * e * linear_zone ** (-2.0 / 3.0)
-        else:
-            rate[i] = k1 * np.cbrt(e)
-
-
-@njit(**_JIT)
-def _obstacle_terms(
-    rate: np.ndarray,
-    escape: np.ndarray,
-    m: np.ndarray,
-    unit: np.ndarray,
-    distance: float,
-    q: float,
-    epsilon: float,
-    p_d: float,
-    k2: np.ndarray,
-    k3: np.ndarray,
-    j: int,
-    axis: np.ndarray,
-    goal: np.ndarray,
-    max_speed: float,
-) -> tuple[float, float]:
-    """Obstacle j's share of ċ where q_j ≤ p_d_j, with `unit` = ∇̂q_j (c − μ_j normalised
-    for an isotropic belief; zero where undefined): θ_j = 1/q_j − 1/p_d_j; its
-    boundary-layer weight w_j adds w_j·unit to `escape`; above ε_j,
-    m_j = ‖c − μ_j‖·unit/(q_j − ε_j) adds k2·θ_j·m_j + k3·θ_j·v_j (v_j ⟂ m_j) to `rate`
-    (Eq. (4)). Returns (θ_j, w_j); in recovery θ_j is reported at its largest in-law
-    value 1/ε_j − 1/p_d_j."""
-    n = rate.shape[0]
-    if max_speed < math.inf:
-        weight = _layer_weight(q, epsilon, p_d)
-    else:  # unbounded: no layer, only the recovery
-        weight = 1.0 if q <= epsilon else 0.0
-    if weight > 0.0:
-        for i in range(n):
-            escape[i] += weight * unit[i]
-    if q <= epsilon:
-        return 1.0 / epsilon - 1.0 / p_d, weight
-    th = 1.0 / q - 1.0 / p_d
-    scale = distance / (q - epsilon)
-    for i in range(n):
-        m[i] = scale * unit[i]
-    gain2 = k2[j] if k2.shape[0] > 1 else k2[0]
-    gain3 = k3[j] if k3.shape[0] > 1 else k3[0]
-    for i in range(n):
-        rate[i] += gain2 * th * m[i]
-    if gain3 != 0.0:
-        _add_null_space(rate, m, goal, axis, gain3 * th)
-    return th, weight
-
-
-@njit(**_JIT)
-def _finish_rate(
-    rate: np.ndarray, share: float, escape: np.ndarray, goal: np.ndarray, max_speed: float
-) -> None:
-    """Saturate ċ at max_speed, then blend it with the escape velocity by the largest
-    boundary-layer weight `share`: ċ = (1 − w)·ċ_law + w·ċ_escape (tube module docstring)."""
-    _saturate(rate, max_speed)
-    if share > 0.0:
-        blended = np.empty(rate.shape[0])
-        _recovery_velocity(blended, escape, goal, max_speed)
-        if share == 1.0:
-            rate[:] = blended
-            return
-        for i in range(rate.shape[0]):
-            rate[i] = (1.0 - share) * rate[i] + share * blended[i]
-
-
-@njit(**_JIT)
-def _layer_weight(q: float, epsilon: float, p_d: float) -> float:
-    """One obstacle's :func:`stt_drake.core.tube.boundary_layer_weights`."""
-    return min(max(1.0 - (q - epsilon) / (BOUNDARY_LAYER * (p_d - epsilon)), 0.0), 1.0)
-
-
-@njit(**_JIT)
-def _saturate(rate: np.ndarray, max_speed: float) -> None:
-    """Scale `rate` down to norm `max_speed` if it is faster (|ċ| ≤ max_center_speed)."""
-    size = 0.0
-    for i in range(rate.shape[0]):
-        size += rate[i] * rate[i]
-    size = math.sqrt(size)
-    if size > max_speed:
-        for i in range(rate.shape[0]):
-            rate[i] *= max_speed / size
-
-
-@njit(**_JIT)
-def _recovery_velocity(
-    rate: np.ndarray, escape: np.ndarray, goal: np.ndarray, max_speed: float
-) -> None:
-    """rate = max_speed·escape/‖escape‖; when the escape directions cancel (a symmetric
-    squeeze, or c on a mean), the goal direction's, else e_0's."""
-    n = rate.shape[0]
-    for direction in (escape, goal):
-        size = 0.0
-        for i in range(n):
-            size += direction[i] * direction[i]
-        size = math.sqrt(size)
-        if size > 1e-9:
-            for i in range(n):
-                rate[i] = max_speed * direction[i] / size
-            return
-    rate[:] = 0.0
-    rate[0] = max_speed
-
-
-@njit(**_JIT)
-def _inflation(
-    sigma: np.ndarray, mean_speed: np.ndarray, sigma_rate: np.ndarray, horizon: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """(reach, spread) of :meth:`stt_drake.core.fixed_rate.BeliefRateBounds.inflation`."""
-    reach = mean_speed * horizon
-    spread = np.empty(sigma.shape[0])
-    for j in range(sigma.shape[0]):
-        low = sigma[j] - sigma_rate[j] * horizon
-        spread[j] = sigma[j] / low - 1.0 if low > 0.0 else math.inf
-    return reach, spread
-
-
-@njit(**_JIT)
-def _segment_distances(
-    start: np.ndarray, end: np.ndarray, mean: np.ndarray, j: int
-) -> tuple[float, float]:
-    """:func:`stt_drake.core.probability.segment_distances` for obstacle j."""
-    length2 = 0.0
-    along = 0.0
-    for i in range(start.shape[0]):
-        chord = end[i] - start[i]
-        length2 += chord * chord
-        along += (mean[j, i] - start[i]) * chord
-    fraction = along / length2 if length2 > 0.0 else 0.0
-    fraction = min(max(fraction, 0.0), 1.0)
-    nearest = 0.0
-    for i in range(start.shape[0]):
-        d = start[i] + fraction * (end[i] - start[i]) - mean[j, i]
-        nearest += d * d
-    return math.sqrt(nearest), max(_distance(start, mean, j), _distance(end, mean, j))
-
-
-@njit(**_JIT)
-def _segment_avoid_lower_bound(
-    start: np.ndarray,
-    end: np.ndarray,
-    mean: np.ndarray,
-    j: int,
-    sigma: float,
-    radius: float,
-    reach: float,
-    spread: float,
-) -> float:
-    """:func:`stt_drake.core.probability.segment_avoid_lower_bound` for obstacle j."""
-    n = start.shape[0]
-    nearest, farthest = _segment_distances(start, end, mean, j)
-    grown = radius + spread * (farthest + reach + radius)
-    offset = nearest - reach
-    return chi_sf(grown / sigma, (offset if offset > 0.0 else 0.0) / sigma, n)
-
-
-@njit(**_JIT)
-def _segment_quantile_lower_bound(
-    start: np.ndarray,
-    end: np.ndarray,
-    mean: np.ndarray,
-    j: int,
-    sigma: float,
-    radius: float,
-    epsilon: float,
-    reach: float,
-    spread: float,
-    prune_above: float,
-) -> float:
-    """:func:`stt_drake.core.probability.segment_quantile_lower_bound` for obstacle j; where the
-    cheap bound σ·max(a − Φ⁻¹(ε), 0) already gives more than `prune_above`, that bound."""
-    n = start.shape[0]
-    nearest, farthest = _segment_distances(start, end, mean, j)
-    offset = max(nearest - reach, 0.0) / sigma
-    penalty = spread * (farthest + reach)
-    cheap = (sigma * max(offset - ndtri(epsilon), 0.0) - penalty) / (1.0 + spread) - radius
-    if cheap > prune_above:
-        return cheap
-    return (sigma * chi_isf(epsilon, offset, n) - penalty) / (1.0 + spread) - radius
-
-
-@njit(**_JIT)
-def tube_advance(
-    center: np.ndarray,
-    mean: np.ndarray,
-    sigma: np.ndarray,
-    radius: np.ndarray,
-    epsilon: np.ndarray,
-    p_d: np.ndarray,
-    k2: np.ndarray,
-    k3: np.ndarray,
-    mean_speed: np.ndarray,
-    sigma_rate: np.ndarray,
-    circulation: np.ndarray,
-    constants: np.ndarray,
-    prune_above: float,
-    duration: float,
-    start_radius: float,
-    max_attempts: int,
-) -> tuple[np.ndarray, np.ndarray, int, float, float, np.ndarray]:
-    """:meth:`stt_drake.core.tube.TubeLaw.advance` in one call (same steps, same rules):
-    sub-steps of the law with the look-ahead bound over 2·duration, each keeping every
-    positive gap at least half and every boundary-layer weight within LAYER_STEP; then the
-    segment certificate over one duration, pulled back (to the earlier sub-steps' ends, then
-    halved towards `center`) until it holds and the end radius the segment allows
-    (:func:`_end_radius_bound`, from `start_radius`; NaN: the first update) stays ≥ r_min;
-    then the radius at both ends of the period. `constants` must skip the
-    quantiles of the law (prune_above = −∞); `prune_above` is the law's own (the
-    radius bounds use it).
-
-    Returns:
-        (c_{k+1}, certified (m,) booleans, accepted sub-steps, r at the start and at the
-        end of the period, θ_j at c_{k+1} with the belief itself).
-    """
-    count, n = mean.shape
-    k1 = constants[0]
-    r_min = constants[1]
-    max_speed = constants[6]
-    target = constants[7:]
-    reach2, spread2 = _inflation(sigma, mean_speed, sigma_rate, 2.0 * duration)
-    position = center.copy()
-    rate, _r, q, _d, theta = tube_step(
-        position, mean, sigma, radius, epsilon, p_d, k2, k3, reach2, spread2, circulation, constants
-    )
-    remaining = duration
-    step = duration
-    accepted = 0
-    candidate = np.empty(n)
-    path = np.empty((max_attempts + 1, n))  # the accepted sub-steps' ends, path[0] = c_k
-    path[0] = center
-    for _attempt in range(max_attempts):
-        if remaining <= 1e-12 * duration or step < duration * 2.0**-30:
-            break
-        step = min(step, remaining)
-        acting = False
-        for j in range(count):
-            if theta[j] > 0.0:
-                acting = True
-        if acting:
-            for i in range(n):
-                candidate[i] = position[i] + step * rate[i]
-        else:  # the exact attraction flow (Eq. (13)), capped at max_speed·step
-            length = 0.0
-            for i in range(n):
-                e = target[i] - position[i]
-                left = abs(e) ** (2.0 / 3.0) - (2.0 / 3.0) * k1 * step
-                move = e - math.copysign(max(left, 0.0) ** 1.5, e)
-                candidate[i] = move
-                length += move * move
-            length = math.sqrt(length)
-            scale = max_speed * step / length if length > max_speed * step else 1.0
-            for i in range(n):
-                candidate[i] = position[i] + scale * candidate[i]
-        rate_c, _r, q_c, _d, theta_c = tube_step(
-            candidate,
-            mean,
-            sigma,
-            radius,
-            epsilon,
-            p_d,
-            k2,
-            k3,
-            reach2,
-            spread2,
-            circulation,
-            constants,
-        )
-        keeps = True
-        for j in range(count):
-            gap = q[j] - epsilon[j]
-            if gap > 0.0 and q_c[j] - epsilon[j] < 0.5 * gap:
-                keeps = False
-            if max_speed < math.inf:  # resolve the boundary layer (tube.LAYER_STEP)
-                change = _layer_weight(q_c[j], epsilon[j], p_d[j]) - _layer_weight(
-                    q[j], epsilon[j], p_d[j]
-                )
-                if abs(change) > LAYER_STEP:
-                    keeps = False
-        if keeps:
-            position = candidate.copy()
-            rate, q, theta = rate_c, q_c, theta_c
-            remaining -= step
-            accepted += 1
-            path[accepted] = position
-            step *= 2.0
-        else:
-            step *= 0.5
-    reach1, spread1 = _inflation(sigma, mean_speed, sigma_rate, duration)
-    must_hold = np.empty(count, dtype=np.bool_)
-    for j in range(count):
-        start_q = period_avoid_probability(
-            _distance(center, mean, j), sigma[j], radius[j] + r_min, reach1[j], spread1[j], n
-        )
-        must_hold[j] = start_q - epsilon[j] > 0.0
-    r_max = constants[2]
-    nu = constants[3]
-    at_start = _point_quantile_lower_bounds(
-        center, mean, sigma, radius, epsilon, reach1, spread1, prune_above
-    )
-    smallest = math.inf  # min over the obstacles (none: inf, as the reference's initial)
-    for j in range(count):
-        smallest = min(smallest, at_start[j])
-    if not start_radius <= smallest:  # the first update (NaN), or a belief jump
-        start_radius = soft_min_radius(at_start, r_max, nu)
-    certified = np.empty(count, dtype=np.bool_)
-    allowed = np.empty(count)
-    holds = False
-    back = accepted  # the segment ends at path[back] until that is the first sub-step
-    for _pull in range(accepted + 60):
-        holds = True
-        length = 0.0
-        for i in range(n):
-            length += (position[i] - center[i]) ** 2
-        length = math.sqrt(length)
-        for j in range(count):
-            lower = _segment_avoid_lower_bound(
-                center, position, mean, j, sigma[j], radius[j] + r_min, reach1[j], spread1[j]
-            )
-            certified[j] = lower - epsilon[j] > 0.0
-            on_segment = _segment_quantile_lower_bound(
-                center,
-                position,
-                mean,
-                j,
-                sigma[j],
-                radius[j],
-                epsilon[j],
-                reach1[j],
-                spread1[j],
-                prune_above,
-            )
-            allowed[j] = _end_radius_bound(start_radius, at_start[j], on_segment, length)
-            if must_hold[j] and not (certified[j] and allowed[j] >= r_min):
-                holds = False
-        if holds:
-            break
-        if back > 1:  # an earlier sub-step's end: the path's chords cut less inward
-            back -= 1
-            position = path[back].copy()
-        else:
-            for i in range(n):
-                position[i] = center[i] + 0.5 * (position[i] - center[i])
-    if not holds:
-        position = center.copy()
-        certified[:] = must_hold
-        allowed[:] = at_start
-    ahead = np.minimum(
-        _point_quantile_lower_bounds(
-            position, mean, sigma, radius, epsilon, reach2, spread2, prune_above
-        ),
-        allowed,
-    )
-    end_radius = soft_min_radius(ahead, r_max, nu)
-    no_inflation = np.empty(0)
-    theta_end = tube_step(
-        position,
-        mean,
-        sigma,
-        radius,
-        epsilon,
-        p_d,
-        k2,
-        k3,
-        no_inflation,
-        no_inflation,
-        circulation,
-        constants,
-    )[4]
-    return position, certified, accepted, start_radius, end_radius, theta_end
-
-
-@njit(**_JIT)
-def _point_quantile_lower_bounds(
-    point: np.ndarray,
-    mean: np.ndarray,
-    sigma: np.ndarray,
-    radius: np.ndarray,
-    epsilon: np.ndarray,
-    reach: np.ndarray,
-    spread: np.ndarray,
-    prune_above: float,
-) -> np.ndarray:
-    """Per obstacle, the lower bound of d̂_j at `point` over the horizon of (reach, spread):
-    :func:`_segment_quantile_lower_bound` of the segment [point, point]."""
-    bounds = np.empty(mean.shape[0])
-    for j in range(mean.shape[0]):
-        bounds[j] = _segment_quantile_lower_bound(
-            point, point, mean, j, sigma[j], radius[j], epsilon[j], reach[j], spread[j], prune_above
-        )
-    return bounds
-
-
-@njit(**_JIT)
-def _end_radius_bound(
-    start_radius: float, at_start: float, on_segment: float, length: float
-) -> float:
-    """:func:`stt_drake.core.fixed_rate.end_radius_bound` for one obstacle."""
-    lipschitz = at_start - length
-    if lipschitz >= on_segment:
-        return lipschitz
-    if start_radius <= on_segment:
-        return on_segment
-    return start_radius - (start_radius - on_segment) * length / (at_start - on_segment)
 
 
 @njit(**_JIT)
@@ -1156,25 +543,6 @@ def carry_circulation(
                 break
             result[j, :] = 0.0
     return result
-
-
-@njit(**_JIT)
-def soft_min_radius(d_hat: np.ndarray, r_max: float, nu: float) -> float:
-    """r = −(1/ν) ln(e^{−ν r_max} + Σ_j e^{−ν d̂_j}) (Eq. (14)), shifted by the minimum;
-    NaN if any d̂_j is NaN."""
-    smallest = r_max
-    for j in range(d_hat.shape[0]):
-        d = d_hat[j]
-        if math.isnan(d):
-            return math.nan
-        if d < smallest:
-            smallest = d
-    total = math.exp(-nu * (r_max - smallest))
-    for j in range(d_hat.shape[0]):
-        exponent = nu * (d_hat[j] - smallest)
-        if exponent < 746.0:  # e^{−746} is 0 in double precision: skipping it is exact
-            total += math.exp(-exponent)
-    return smallest - math.log(total) / nu
 
 
 # --------------------------------------------------------------------------- belief port
@@ -1237,63 +605,6 @@ def active_slots(
                 rows[k, i] = task[j, i]
             k += 1
     return slots, mean, sigma, rows
-
-
-@njit(**_JIT)
-def _per_slot(values: np.ndarray, slots: np.ndarray) -> np.ndarray:
-    """`values` (one per slot, or a single one) at `slots`."""
-    if values.shape[0] == 1:
-        return values
-    out = np.empty(slots.shape[0])
-    for k in range(slots.shape[0]):
-        out[k] = values[slots[k]]
-    return out
-
-
-@njit(**_JIT)
-def tube_step_packed(
-    center: np.ndarray,
-    belief: np.ndarray,
-    task: np.ndarray,
-    k2: np.ndarray,
-    k3: np.ndarray,
-    circulation: np.ndarray,
-    constants: np.ndarray,
-) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`tube_step` on a belief port vector and the task rows ([r_o, ε, p_d] per slot):
-    the active slots only, σ_j = √λ_max(Σ_j); per slot outputs with q = 1, d̂ = +∞, θ = 0 in
-    the inactive slots (they never reach ċ or r)."""
-    n = center.shape[0]
-    slots, mean, sigma, rows = active_slots(belief, task, n)
-    count = task.shape[0]
-    axes = circulation
-    if circulation.shape[0] == count and slots.shape[0] < count:
-        axes = np.empty((slots.shape[0], circulation.shape[1]))
-        for k in range(slots.shape[0]):
-            axes[k] = circulation[slots[k]]
-    empty = np.empty(0)
-    rate, radius, q_active, d_active, theta_active = tube_step(
-        center,
-        mean,
-        sigma,
-        rows[:, 0],
-        rows[:, 1],
-        rows[:, 2],
-        _per_slot(k2, slots),
-        _per_slot(k3, slots),
-        empty,
-        empty,
-        axes,
-        constants,
-    )
-    q = np.ones(count)
-    d_hat = np.full(count, np.inf)
-    theta = np.zeros(count)
-    for k in range(slots.shape[0]):
-        q[slots[k]] = q_active[k]
-        d_hat[slots[k]] = d_active[k]
-        theta[slots[k]] = theta_active[k]
-    return rate, radius, q, d_hat, theta
 
 
 # --------------------------------------------------------------------------- invariants

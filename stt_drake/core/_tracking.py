@@ -6,8 +6,7 @@ matrix products (a few µs of numpy call overhead each); these loops exploit the
 instead (F = [[I, Δt I], [0, I]], H = [I 0]), so a predict + correct of 50 tracks is one
 native call. The dimension n is made a compile-time constant (``numba.literally``, one
 specialisation per n in 1, 2, 3) so the tiny loops unroll: that halves the time of the
-runtime-n version. This module imports nothing of the package (numba's cache freezes module
-globals); a test compares it with the numpy reference.
+runtime-n version. A test compares it with the numpy reference.
 
 Arrays, for m slots in dimension n: ``state`` (m, 2n) = [p, v] per slot (m, m/s),
 ``covariance`` (m, 2n, 2n), ``dt`` (m,) seconds, ``z`` (m, n) measured positions (m),
@@ -21,7 +20,9 @@ from __future__ import annotations
 import numpy as np
 from numba import literally, njit
 
-_JIT = {"cache": True, "error_model": "numpy", "nogil": True}
+from stt_drake.core.backend import jit_options
+
+_JIT = jit_options()
 
 
 @njit(**_JIT)

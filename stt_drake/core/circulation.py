@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from stt_drake.core import backend
+from stt_drake.core.constants import CIRCULATION_MIN_SINE
 
 
 def null_space_direction(
@@ -48,10 +49,6 @@ def null_space_direction(
         direction[usable] = orthogonal[usable] / length[usable, None]
         chosen |= usable
     return direction * norm_m
-
-
-#: A circulation axis ω is used while |ω × m̂| exceeds this (same as the compiled kernel).
-CIRCULATION_MIN_SINE = 1e-3
 
 
 def carry_circulation(

@@ -30,6 +30,7 @@ from scipy import special
 from scipy.optimize import brentq
 
 from stt_drake.core import backend
+from stt_drake.core.constants import SF_IS_ONE_BELOW
 
 try:  # the ufuncs behind scipy.stats.ncx2.sf / .isf (same Boost code, no wrapper overhead)
     from scipy.special._ufuncs import _ncx2_isf, _ncx2_sf
@@ -50,8 +51,6 @@ _INV_SQRT_2PI = 1.0 / np.sqrt(2.0 * np.pi)
 #: r_max term, under double rounding.
 PRUNE_HEADROOM_NU = 40.0
 
-#: Φ⁻¹(2⁻⁵⁴): below this b − a the noncentral chi survival function is 1 in double precision.
-_SF_IS_ONE_BELOW = float(special.ndtri(2.0**-54))
 
 #: Offset a from which the numpy reference uses the large-offset forms instead of Boost and
 #: cdflib, whose noncentral χ² series stop converging from a ≈ 2e5 (λ = a² ≈ 4e10; near
@@ -106,11 +105,11 @@ def _numpy_chi_sf(threshold: np.ndarray, offset: np.ndarray, dimension: int) -> 
         return special.ndtr(a - b) + special.ndtr(-a - b) + shell
     # Where the answer is 1 to double precision, return it without calling Boost: its sf
     # returns −0.0 at x = 0 when nc > 0, and raises OverflowError (tgamma) for x ≲ 2.5e-8
-    # once nc ≳ 400. Since ‖Z‖ ≥ Z·e, 1 − sf ≤ Φ(b − a) ≤ 2⁻⁵⁴ when b − a ≤ _SF_IS_ONE_BELOW,
+    # once nc ≳ 400. Since ‖Z‖ ≥ Z·e, 1 − sf ≤ Φ(b − a) ≤ 2⁻⁵⁴ when b − a ≤ SF_IS_ONE_BELOW,
     # and 1 − 2⁻⁵⁴ rounds to 1. (Written so that NaN inputs still reach Boost and give NaN.)
     b, a = np.broadcast_arrays(b, a)
     x, nc = b * b, a * a
-    compute = ~((x <= 0.0) | (b - a <= _SF_IS_ONE_BELOW))
+    compute = ~((x <= 0.0) | (b - a <= SF_IS_ONE_BELOW))
     large = compute & (a >= LARGE_OFFSET)
     series = compute & ~large
     result = np.ones(x.shape)
