@@ -1,6 +1,6 @@
 """Scenario files: the schema (dataclasses), reading YAML into it, the rules checked
 without building anything, and random obstacle fields. The complete loader, which adds the
-checks that need the built laws, is :func:`stt_drake.build.load_scenario`."""
+checks that need the built laws, is :func:`stt_drake.assembly.load_scenario`."""
 
 from stt_drake.config.load import (
     ScenarioText,

@@ -41,7 +41,7 @@ def require_sigma(value: float, path: str) -> None:
 #: Largest eigenvalue ratio λ_max/λ_min of a covariance in a scenario file. A larger one is
 #: numerically singular for this tool: eigh determines λ_min only to ~1e-16·λ_max (at 1e8,
 #: to 1e-8 of itself), the exact probabilities are tested up to ratios of 1e4
-#: (``tests/test_anisotropic.py``), and σ ≥ 1 mm with |x| ≤ 1e6 m needs no more. (The
+#: (``tests/core/test_anisotropic.py``), and σ ≥ 1 mm with |x| ≤ 1e6 m needs no more. (The
 #: numerical core accepts up to :data:`stt_drake.core.anisotropic.MAX_CONDITION`, 1e12, for
 #: a tracker's covariances.)
 MAX_CONDITION = 1e8

@@ -156,7 +156,7 @@ def _parses(kind: type, data: Any) -> bool:
 
 def read_scenario(path: str | Path, seed: int | None = None) -> Scenario:
     """Load, expand and validate (:func:`stt_drake.config.validate.validate`) a scenario file;
-    raises ScenarioError on any bad input. :func:`stt_drake.build.load_scenario` adds
+    raises ScenarioError on any bad input. :func:`stt_drake.assembly.load_scenario` adds
     the checks that need the built laws.
 
     `seed`, when given, replaces the file's `seed` before anything random is drawn, so a

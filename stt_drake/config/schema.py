@@ -2,7 +2,7 @@
 
 Loaded by :mod:`stt_drake.config.load` with ``pydrake.common.yaml.yaml_load_typed`` and
 checked by :mod:`stt_drake.config.validate`; the rules that need the built laws or the
-arm model are in :mod:`stt_drake.build.checks`.
+arm model are in :mod:`stt_drake.assembly.checks`.
 """
 
 import math
@@ -113,7 +113,8 @@ class TubeConfig:
     whatever ν, as for one obstacle: 2 ln 2/r_min). `update_rate_hz` = 0 integrates the
     centre in continuous time; > 0 runs the fixed-rate (real-time) discrete update.
     `max_center_speed` (m/s) bounds |ċ| always, and is the speed of a recovery (0 derives
-    it from what the plant can follow, see :func:`stt_drake.build.feasibility.following_speed`)."""
+    it from what the plant can follow, see
+    :func:`stt_drake.assembly.feasibility.following_speed`)."""
 
     r_min: float = 0.1
     r_max: float = 0.3

@@ -57,6 +57,7 @@ from stt_drake.core.motion import (
 from stt_drake.core.rules import (
     check_box_funnel,
     check_center_speed,
+    check_continuous_for_covariance,
     check_initial_avoidance,
     check_kappa,
     check_nu,
@@ -378,7 +379,7 @@ def _validate_plant(scenario: Scenario) -> None:
 
 def validate(scenario: Scenario) -> None:
     """Check every rule of the paper and of the file format that needs no built law or
-    plant model (those are :func:`stt_drake.build.checks.check_buildable`); raise
+    plant model (those are :func:`stt_drake.assembly.checks.check_buildable`); raise
     ScenarioError (AssumptionError when the initial avoidance condition fails)."""
     validate_dimension(scenario)
     check_limits(scenario, drawn=True)
@@ -425,14 +426,11 @@ def validate(scenario: Scenario) -> None:
     _validate_recorded_overlap(scenario)
     full = [i for i, obstacle in enumerate(scenario.obstacles) if has_full_covariance(obstacle)]
     if full:
-        require(
-            tube.update_rate_hz == 0.0,
-            "scenario.tube.update_rate_hz",
-            f"must be 0 (continuous time) when an obstacle has a full covariance (obstacle "
-            f"{full[0]}): the fixed-rate tube's period guarantee is derived for isotropic "
-            "beliefs (sigma) only; use 0 (continuous)",
-            tube.update_rate_hz,
-        )
+        hint = f"use 0 (continuous): obstacle {full[0]} has a full covariance"
+        with rule_path("scenario.tube", hint):
+            check_continuous_for_covariance(
+                True, tube.update_rate_hz != 0.0, "update_rate_hz", tube.update_rate_hz, "0"
+            )
     if tube.nu != 0.0:  # the SpatiotemporalTube's and AddStt's rule
         with rule_path("scenario.tube", "0 derives it"):
             check_nu_for_count(tube.nu, tube.r_min, len(scenario.obstacles))

@@ -8,7 +8,7 @@ rules), a 2-D plant, for an interactive crowd a `perception:` section (the belie
 from a tracker: nothing else knows where the pedestrians will go) and no other obstacles
 (the pedestrians are the obstacles). :func:`validate_crowd`, called by
 :func:`stt_drake.config.validate.validate`, adds that the obstacle list holds exactly the N
-pedestrian slots, which :func:`stt_drake.build.load_scenario` appends (the scene is drawn
+pedestrian slots, which :func:`stt_drake.assembly.load_scenario` appends (the scene is drawn
 there: :mod:`stt_drake.crowd` sits above this package). Every broken rule raises
 :class:`stt_drake.config.schema.ScenarioError` naming ``scenario.crowd.<field>``.
 """
@@ -128,7 +128,7 @@ def validate_crowd_section(scenario: Scenario) -> None:
 
 def validate_crowd(scenario: Scenario) -> None:
     """The section's rules, and that the obstacle list is exactly the N pedestrian slots
-    (appended by :func:`stt_drake.build.load_scenario`, which draws the scene)."""
+    (appended by :func:`stt_drake.assembly.load_scenario`, which draws the scene)."""
     if scenario.crowd is None:
         return
     validate_crowd_section(scenario)
@@ -137,6 +137,6 @@ def validate_crowd(scenario: Scenario) -> None:
         len(scenario.obstacles) == count,
         "scenario.obstacles",
         f"must be empty with a crowd: its {count} pedestrians are the obstacles, placed by "
-        "the loader (stt_drake.build.load_scenario)",
+        "the loader (stt_drake.assembly.load_scenario)",
         f"{len(scenario.obstacles)} obstacle slots",
     )

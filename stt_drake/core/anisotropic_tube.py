@@ -9,7 +9,7 @@ The paper restricts Σ_j to σ_j²I. With a full Σ_j (n = 2, 3) the law keeps i
   1/(q_j − ε_j). For Σ_j = σ_j²I, q_j depends on c only through ‖c − μ_j‖ and increases
   with it, so ∇_c q_j = q_j′(‖c − μ_j‖)·(c − μ_j)/‖c − μ_j‖ with q_j′ > 0 and m_j is exactly
   the paper's (c − μ_j)/(q_j − ε_j) (the factor ‖c − μ_j‖ keeps the gains k2, k3 of the
-  isotropic scenarios meaning the same; tests/test_anisotropic_tube.py checks the
+  isotropic scenarios meaning the same; tests/core/test_anisotropic_tube.py checks the
   reduction against the isotropic kernel).
 * v_j ⟂ m_j as in the isotropic law (:func:`stt_drake.core.circulation.null_space_direction`).
 * d̂_j(c) = √Q_Y(1 − ε_j) − r_o_j (Eq. (8)) with Y = ‖c − O_j‖², the generalized chi-square
@@ -48,7 +48,7 @@ Everything else is exact: the eigen-decomposition, q_j and ∇q_j (one contour i
 (Halley on the same contour).
 
 This module is the numpy reference (:func:`obstacle_terms`); the compiled kernel is
-:func:`stt_drake.core._anisotropic_tube.anisotropic_tube_step`.
+:func:`stt_drake.core._tube.exact_tube_step`.
 """
 
 from __future__ import annotations

@@ -5,18 +5,23 @@ O_j ~ N(mean_j, Σ_j) with a full covariance Σ_j (:func:`obstacle_covariance`).
 Each obstacle also carries its own task numbers: the minimum avoidance probability
 epsilon_j (Definition 2.3) and the separation level p_d_j of Assumption 3.
 
-The belief is what a tracker knows; the task numbers are the tube's.
-On the `obstacle_belief` port the belief of `count` obstacle slots in dimension n is one
-vector, slot-major: ``[mean (n), covariance (n², row-major), active]`` for slot 0, then
-slot 1, ... (:class:`GaussianBelief`); active is 1.0 for a slot holding a track, else 0.0.
-The task numbers r_o, ε, p_d of each slot are parameters (:class:`ObstacleTask`).
-The tube law reads both at once as an :class:`ObstacleBelief`.
+The belief is what a tracker knows; the task numbers are the tube's. One type per boundary:
+
+* on the `obstacle_belief` port, the belief of `count` obstacle slots in dimension n is
+  one vector, slot-major: ``[mean (n), covariance (n², row-major), active]`` for slot 0,
+  then slot 1, ... (:class:`GaussianBelief`); active is 1.0 for a slot holding a track,
+  else 0.0. The task numbers r_o, ε, p_d of each slot are parameters (:class:`ObstacleTask`);
+* the tube law, the invariant monitor and the visualizer read an :class:`ObstacleBelief`:
+  the obstacles' arrays with their task numbers. A system makes it once from its input
+  (:meth:`ObstacleBelief.from_port`, a :class:`PortBelief`); what is computed from it is
+  per slot (:meth:`ObstacleBelief.in_slots`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Protocol
 
 import numpy as np
@@ -34,6 +39,25 @@ def record_size(dimension: int) -> int:
 def belief_size(count: int, dimension: int) -> int:
     """Length of the belief port vector for `count` obstacle slots in R^dimension."""
     return count * record_size(dimension)
+
+
+def check_vector_length(length: int, dimension: int) -> None:
+    """ValueError unless a port vector of `length` is a whole number of slot records."""
+    n = dimension
+    if length % record_size(n):
+        raise ValueError(
+            f"obstacle_belief: a vector of length {length} is not a whole number of "
+            f"{record_size(n)}-long slot records [mean ({n}), covariance ({n * n}), "
+            f"active] for dimension {n}"
+        )
+
+
+def _check_slot_count(slots: int, task: ObstacleTask) -> None:
+    if task.count != slots:
+        raise ValueError(
+            f"obstacle_belief: {slots} slots on the port but {task.count} "
+            "obstacles' task numbers (radius, epsilon, p_d)"
+        )
 
 
 @dataclass(frozen=True)
@@ -82,12 +106,7 @@ class GaussianBelief:
         """Unpack a port vector (mean and covariance are views of it)."""
         n = dimension
         vector = np.asarray(vector, dtype=float)
-        if vector.size % record_size(n):
-            raise ValueError(
-                f"obstacle_belief: a vector of length {vector.size} is not a whole number of "
-                f"{record_size(n)}-long slot records [mean ({n}), covariance ({n * n}), "
-                f"active] for dimension {n}"
-            )
+        check_vector_length(vector.size, n)
         table = vector.reshape(-1, record_size(n))
         return cls(
             mean=table[:, :n],
@@ -123,7 +142,11 @@ class ObstacleTask:
         return self.radius.shape[0]
 
     def table(self) -> np.ndarray:
-        """(m, 3) rows [r_o, ε, p_d] per slot: the compiled kernels' layout."""
+        """(m, 3) rows [r_o, ε, p_d] per slot: the compiled kernels' layout (made once)."""
+        return self._table
+
+    @cached_property
+    def _table(self) -> np.ndarray:
         return np.column_stack([self.radius, self.epsilon, self.p_d]).astype(float)
 
     @classmethod
@@ -141,9 +164,11 @@ class ObstacleTask:
 
 @dataclass(frozen=True)
 class ObstacleBelief:
-    """What the tube law reads for every obstacle it acts on at one instant (arrays over
-    obstacles j): the belief of the active slots with their task numbers
-    (:meth:`of`).
+    """What the tube law, the invariant monitor and the visualizer read for every obstacle
+    at one instant (arrays over obstacles j): the belief with its task numbers, ready for
+    the kernels. Made by :func:`obstacle_belief` (scripted obstacles, one per slot), by
+    :meth:`of` (the active slots of a :class:`GaussianBelief`) or, at a system's input, by
+    :meth:`from_port` (the same, unpacked on first use).
 
     Attributes:
         mean: (m, n) mean of each obstacle centre, metres.
@@ -190,17 +215,46 @@ class ObstacleBelief:
         """The `obstacle_belief` port value of this belief (:meth:`gaussian`)."""
         return self.gaussian().to_vector()
 
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(μ, σ, r_o, ε, p_d): the isotropic kernels' per-obstacle arguments, in order."""
+        return self.mean, self.sigma, self.radius, self.epsilon, self.p_d
+
+    @property
+    def packed(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(port vector, task rows) for the compiled kernels that read the port themselves
+        (σ_j = √λ_max(Σ_j) computed in the kernel); None: not made from a port."""
+        return None
+
+    def in_slots(self, values: np.ndarray, fill: float) -> np.ndarray:
+        """Per-obstacle `values` over the port slots this belief was made from, `fill` in an
+        inactive slot; here obstacle j is slot j, so `values` itself."""
+        return values
+
+    def of_obstacles(self, rows: np.ndarray | None) -> np.ndarray | None:
+        """Per-slot `rows` (e.g. circulation axes) at the obstacles of this belief; here
+        obstacle j is slot j, so `rows` itself."""
+        return rows
+
+    def obstacles(self) -> ObstacleBelief:
+        """This belief with its arrays made: itself (a :class:`PortBelief` unpacks)."""
+        return self
+
+    @classmethod
+    def from_port(
+        cls, vector: np.ndarray, dimension: int, task: ObstacleTask, full_covariance: bool = False
+    ) -> PortBelief:
+        """The belief a system reads from its `obstacle_belief` input: the active slots of the
+        port `vector` with their `task` numbers (:meth:`of`), unpacked on first use; Σ_j
+        kept when `full_covariance`."""
+        return PortBelief(vector, dimension, task, full_covariance)
+
     @classmethod
     def of(
         cls, belief: GaussianBelief, task: ObstacleTask, full_covariance: bool = False
     ) -> ObstacleBelief:
         """The active slots of `belief` with their task numbers, in slot order; σ_j =
         √λ_max(Σ_j), and Σ_j kept when `full_covariance`."""
-        if task.count != belief.count:
-            raise ValueError(
-                f"obstacle_belief: {belief.count} slots on the port but {task.count} "
-                "obstacles' task numbers (radius, epsilon, p_d)"
-            )
+        _check_slot_count(belief.count, task)
         active = np.flatnonzero(belief.active)
         covariance = belief.covariance[active]
         return cls(
@@ -211,6 +265,87 @@ class ObstacleBelief:
             p_d=task.p_d[active],
             covariance=covariance if full_covariance else None,
         )
+
+
+def _unpacked(name: str) -> property:
+    """A :class:`PortBelief` field, read from its unpacked arrays."""
+    return property(
+        lambda self: getattr(self.obstacles(), name),
+        doc=f"{name} of the active slots (:class:`ObstacleBelief`), unpacked on first use",
+    )
+
+
+class PortBelief(ObstacleBelief):
+    """An :class:`ObstacleBelief` made from an `obstacle_belief` port value
+    (:meth:`ObstacleBelief.from_port`): the active slots with the task's r_o, ε, p_d
+    (:meth:`ObstacleBelief.of`). Nothing is unpacked until a field is read: the compiled
+    kernels of the isotropic law and of the margins read the port vector and the task rows
+    themselves (:attr:`packed`), so the hot path pays one compiled call. What is computed
+    from it is spread back over the slots (:meth:`in_slots`).
+
+    Attributes:
+        vector: the port vector (layout in the module docstring).
+        slot_task: r_o, ε, p_d of every slot.
+        full_covariance: whether the law uses each Σ_j exactly (`covariance` is then Σ_j of
+            the active slots), else σ_j² = λ_max(Σ_j) (`covariance` None).
+    """
+
+    mean = _unpacked("mean")
+    sigma = _unpacked("sigma")
+    radius = _unpacked("radius")
+    epsilon = _unpacked("epsilon")
+    p_d = _unpacked("p_d")
+
+    def __init__(
+        self, vector: np.ndarray, dimension: int, task: ObstacleTask, full_covariance: bool
+    ) -> None:
+        vector = np.asarray(vector, dtype=float)
+        check_vector_length(vector.size, dimension)
+        _check_slot_count(vector.size // record_size(dimension), task)
+        for name, value in (
+            ("vector", vector),
+            ("slot_task", task),
+            ("full_covariance", bool(full_covariance)),
+            ("_dimension", dimension),
+        ):
+            object.__setattr__(self, name, value)  # frozen, as every ObstacleBelief
+
+    @property
+    def dimension(self) -> int:
+        return self._dimension
+
+    @property
+    def covariance(self) -> np.ndarray | None:  # type: ignore[override]
+        """Σ_j of the active slots with `full_covariance` (unpacked on first use), else None."""
+        return self.obstacles().covariance if self.full_covariance else None
+
+    @property
+    def packed(self) -> tuple[np.ndarray, np.ndarray] | None:
+        return None if self.full_covariance else (self.vector, self.slot_task.table())
+
+    @cached_property
+    def slots(self) -> GaussianBelief:
+        """The port value, unpacked (views of :attr:`vector`)."""
+        return GaussianBelief.from_vector(self.vector, self._dimension)
+
+    def in_slots(self, values: np.ndarray, fill: float) -> np.ndarray:
+        """Per-obstacle `values` spread over the slots, `fill` in the inactive ones."""
+        slots = self.slots
+        return values if slots.active.all() else slots.per_slot(values, fill)
+
+    def of_obstacles(self, rows: np.ndarray | None) -> np.ndarray | None:
+        """Per-slot `rows` at the active slots."""
+        if rows is None:
+            return None
+        return np.asarray(rows).reshape(self.slots.count, -1)[self.slots.active]
+
+    def obstacles(self) -> ObstacleBelief:
+        """The active slots' arrays (:meth:`ObstacleBelief.of`), made once."""
+        return self._obstacles
+
+    @cached_property
+    def _obstacles(self) -> ObstacleBelief:
+        return ObstacleBelief.of(self.slots, self.slot_task, self.full_covariance)
 
 
 class ObstacleModel(Protocol):

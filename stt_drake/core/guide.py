@@ -12,7 +12,7 @@ current centre. So they hold for *any* η(t) that is bounded and measurable — 
 jumps at every replan, lies inside an obstacle's level set, or runs ahead of the tube — and
 the tube, the controller and the monitor are unchanged. The guide only chooses η(t); the
 tube law keeps the centre out of every ε set on its own, and the monitor checks it at every
-step (``tests/test_guide.py`` places η inside level sets and checks (ii)/(iii) hold).
+step (``tests/core/test_guide.py`` places η inside level sets and checks (ii)/(iii) hold).
 
 Claim (i) (reach in finite time) does depend on η: its proof needs θ_j = 0 for t ≥ t₁
 (Assumption 3) and η fixed at the task's target. With a guide, η(t) equals the task's
@@ -60,7 +60,7 @@ BETA_SPACING = 0.01
 @dataclass(frozen=True)
 class GuideSettings:
     """The guide's numbers (derived from a scenario by
-    :func:`stt_drake.build.guide.guide_settings`).
+    :func:`stt_drake.assembly.guide.guide_settings`).
 
     Attributes:
         resolution: grid cell side (m).

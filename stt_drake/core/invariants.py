@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stt_drake.core import anisotropic, backend
-from stt_drake.core.belief import GaussianBelief, ObstacleBelief, ObstacleTask, record_size
+from stt_drake.core.belief import ObstacleBelief
 from stt_drake.core.probability import avoid_probability
 
 INVARIANT_NAMES = (
@@ -51,41 +51,55 @@ class InvariantSample:
 def evaluate_invariants(
     output: np.ndarray, center: np.ndarray, radius: float, belief: ObstacleBelief, r_min: float
 ) -> InvariantSample:
-    """Compute every margin at one instant, independently of the tube's own diagnostics.
+    """Compute every margin at one instant, independently of the tube's own diagnostics:
+    the probabilities per slot of `belief` (:meth:`ObstacleBelief.in_slots`; an inactive
+    slot reads 1 and takes no part in the margins).
 
-    One call of the compiled :func:`stt_drake.core._kernels.invariant_margins` for n ≤ 3 (unless
-    the numpy path is selected, see :mod:`stt_drake.core.backend`), else numpy.
+    With full covariances each Σ_j exactly (:func:`_anisotropic_probabilities`); else one
+    call of the compiled :func:`stt_drake.core._kernels.invariant_margins_packed` (a belief
+    from a port: the monitor's hot path) or :func:`stt_drake.core._kernels.invariant_margins`
+    for n ≤ 3 (unless the numpy path is selected, see :mod:`stt_drake.core.backend`), else
+    numpy.
     """
-    if belief.covariance is not None:
+    output = np.asarray(output, dtype=float)
+    dimension = output.shape[0]
+    packed = belief.packed
+    if packed is not None:
+        kernel = backend.compiled("invariant_margins_packed", dimension)
+        if kernel is not None:
+            tube = np.append(np.asarray(center, dtype=float), radius)
+            return InvariantSample(*kernel(output, tube, *packed, r_min))
+    obstacles = belief.obstacles()
+    if obstacles.covariance is not None:
         center_q, tube_q, output_q = _anisotropic_probabilities(
-            output, center, radius, belief, r_min
+            output, center, radius, obstacles, r_min
         )
-        return InvariantSample(
-            _margins(output, center, radius, belief.epsilon, center_q, tube_q, output_q),
-            output_q,
-            tube_q,
-        )
-    kernel = backend.compiled("invariant_margins", belief.mean.shape[-1])
-    if kernel is not None:
-        margins, output_q, tube_q = kernel(
-            np.asarray(output, dtype=float),
-            np.asarray(center, dtype=float),
-            float(radius),
-            belief.mean,
-            belief.sigma,
-            belief.radius,
-            belief.epsilon,
-            float(r_min),
-        )
-        return InvariantSample(margins, output_q, tube_q)
-    center_q = avoid_probability(center, belief.mean, belief.sigma, belief.radius + r_min)
-    tube_q = avoid_probability(center, belief.mean, belief.sigma, belief.radius + max(radius, 0.0))
-    output_q = avoid_probability(output, belief.mean, belief.sigma, belief.radius)
-    return InvariantSample(
-        _margins(output, center, radius, belief.epsilon, center_q, tube_q, output_q),
-        output_q,
-        tube_q,
-    )
+        margins = _margins(output, center, radius, obstacles.epsilon, center_q, tube_q, output_q)
+    else:
+        kernel = backend.compiled("invariant_margins", dimension)
+        if kernel is not None:
+            margins, output_q, tube_q = kernel(
+                output,
+                np.asarray(center, dtype=float),
+                float(radius),
+                obstacles.mean,
+                obstacles.sigma,
+                obstacles.radius,
+                obstacles.epsilon,
+                float(r_min),
+            )
+        else:
+            center_q = avoid_probability(
+                center, obstacles.mean, obstacles.sigma, obstacles.radius + r_min
+            )
+            tube_q = avoid_probability(
+                center, obstacles.mean, obstacles.sigma, obstacles.radius + max(radius, 0.0)
+            )
+            output_q = avoid_probability(output, obstacles.mean, obstacles.sigma, obstacles.radius)
+            margins = _margins(
+                output, center, radius, obstacles.epsilon, center_q, tube_q, output_q
+            )
+    return InvariantSample(margins, belief.in_slots(output_q, 1.0), belief.in_slots(tube_q, 1.0))
 
 
 def _margins(
@@ -113,11 +127,14 @@ def _margins(
 def center_avoid_probability(
     center: np.ndarray, belief: ObstacleBelief, r_min: float
 ) -> np.ndarray:
-    """q_j(c) with the buffered radius r_o_j + r_min, per obstacle (full covariances where
-    the belief has them)."""
-    if belief.covariance is None:
-        return avoid_probability(center, belief.mean, belief.sigma, belief.radius + r_min)
-    return _anisotropic_probabilities(center, center, 0.0, belief, r_min)[0]
+    """q_j(c) with the buffered radius r_o_j + r_min, per slot of `belief` (an inactive slot
+    reads 1; full covariances where the belief has them)."""
+    obstacles = belief.obstacles()
+    if obstacles.covariance is None:
+        q = avoid_probability(center, obstacles.mean, obstacles.sigma, obstacles.radius + r_min)
+    else:
+        q = _anisotropic_probabilities(center, center, 0.0, obstacles, r_min)[0]
+    return belief.in_slots(q, 1.0)
 
 
 def _anisotropic_probabilities(
@@ -141,58 +158,6 @@ def _anisotropic_probabilities(
         ]
         output_q[j] = anisotropic.ball_probabilities(variances, at_output, r_o)[1][0]
     return center_q, tube_q, output_q
-
-
-def evaluate_invariants_packed(
-    output: np.ndarray,
-    tube: np.ndarray,
-    belief_vector: np.ndarray,
-    task_table: np.ndarray,
-    r_min: float,
-) -> InvariantSample:
-    """:func:`evaluate_invariants` on port vectors: `tube` = [c, r], the belief port vector
-    (layout of :mod:`stt_drake.core.belief`) and the task rows
-    (:meth:`~stt_drake.core.belief.ObstacleTask.table`), σ_j = √λ_max(Σ_j) — one compiled
-    call, no ObstacleBelief built (the monitor's hot path). Per-slot probabilities; an
-    inactive slot reads 1 and takes no part in the margins."""
-    output = np.asarray(output, dtype=float)
-    dimension = output.shape[0]
-    kernel = backend.compiled("invariant_margins_packed", dimension)
-    # A malformed belief vector takes the numpy path: from_vector names the problem.
-    if kernel is None or len(belief_vector) % record_size(dimension):
-        belief = GaussianBelief.from_vector(belief_vector, dimension)
-        task = ObstacleTask(*np.asarray(task_table, dtype=float).T)
-        return evaluate_invariants_slots(output, tube, belief, task, False, r_min)
-    return InvariantSample(
-        *kernel(
-            output,
-            np.asarray(tube, dtype=float),
-            np.asarray(belief_vector, dtype=float),
-            task_table,
-            r_min,
-        )
-    )
-
-
-def evaluate_invariants_slots(
-    output: np.ndarray,
-    tube: np.ndarray,
-    belief: GaussianBelief,
-    task: ObstacleTask,
-    full_covariance: bool,
-    r_min: float,
-) -> InvariantSample:
-    """:func:`evaluate_invariants` on the active slots of `belief` (Σ_j exactly when
-    `full_covariance`), probabilities per slot as in :func:`evaluate_invariants_packed`."""
-    tube = np.asarray(tube, dtype=float)
-    sample = evaluate_invariants(
-        output, tube[:-1], float(tube[-1]), ObstacleBelief.of(belief, task, full_covariance), r_min
-    )
-    return InvariantSample(
-        sample.margins,
-        belief.per_slot(sample.output_avoid_probability, 1.0),
-        belief.per_slot(sample.tube_avoid_probability, 1.0),
-    )
 
 
 @dataclass

@@ -1,7 +1,7 @@
 """The rules of the paper's constants, one place for each: the core objects check them when
 they are made (:class:`~stt_drake.core.tube.TubeLaw`,
 :class:`~stt_drake.core.belief.ObstacleTask`, :class:`~stt_drake.core.control.BoxFunnel`,
-:class:`~stt_drake.core.control.FunnelController`; :func:`stt_drake.build.AddStt` and
+:class:`~stt_drake.core.control.FunnelController`; :func:`stt_drake.assembly.AddStt` and
 :class:`stt_drake.systems.tube.SpatiotemporalTube` the rules that need the obstacle count or
 the start), and the scenario loader (:mod:`stt_drake.config.validate`) checks a file against
 the same functions. So the Python API refuses exactly what a scenario file is refused for,
@@ -22,6 +22,8 @@ The rules:
   no boundary layer and no finite recovery speed — a scenario file must give a finite one);
 * ν against the obstacle count, ν > ln(n_o + 1)/r_min (:func:`check_nu_for_count`; the
   soft-min radius stays > 0, Theorem 3.2 (iii)), once the count is known;
+* full covariance ⇒ continuous time (:func:`check_continuous_for_covariance`): the
+  fixed-rate tube's period bounds hold for isotropic beliefs only;
 * an obstacle's task numbers (:func:`check_obstacle_task`): r_o > 0, ε ∈ (0, 1],
   p_d ∈ (ε, 1) — p_d = 1 can never hold for a Gaussian centre (:data:`GAUSSIAN_P_D_RULE`);
 * the funnel controller: κ_k > 0 per stage (:func:`check_kappa`), box funnels 0 < q < p and
@@ -252,6 +254,30 @@ def check_nu_for_count(nu: float, r_min: float, obstacle_count: int) -> None:
         f"must exceed ln(n_o + 1)/r_min = {bound:.4g} for {obstacle_count} "
         f"obstacle{'' if obstacle_count == 1 else 's'}, or the soft-min radius can go negative",
         nu,
+    )
+
+
+#: Why a belief with full covariances Σ_j runs the continuous-time tube.
+ISOTROPIC_PERIOD_RULE = (
+    "the fixed-rate tube's period guarantee (stt_drake.core.fixed_rate) is derived for "
+    "isotropic beliefs (sigma) only"
+)
+
+
+def check_continuous_for_covariance(
+    full_covariance: bool, fixed_rate: bool, field: str, value: Any, continuous: str
+) -> None:
+    """Full covariance ⇒ continuous time: a tube whose belief has full covariances Σ_j must
+    not run at a fixed rate (:data:`ISOTROPIC_PERIOD_RULE`). `field` is the caller's switch
+    of the fixed rate, `value` its value and `continuous` the value that selects continuous
+    time (a scenario's ``update_rate_hz`` 0, the system's ``update_period`` None, the law's
+    period ``inflation`` None)."""
+    require(
+        not (full_covariance and fixed_rate),
+        field,
+        f"must be {continuous} (continuous time) when the belief has full covariances: "
+        + ISOTROPIC_PERIOD_RULE,
+        value,
     )
 
 

@@ -45,7 +45,7 @@ import numpy as np
 
 from stt_drake.core import backend
 from stt_drake.core.belief import GaussianBelief
-from stt_drake.core.consistency import Adaptation, monitored_update_numpy
+from stt_drake.core.consistency import Adaptation
 from stt_drake.core.perception import Detections
 
 
@@ -312,6 +312,57 @@ def monitored_update(
     return monitored_update_numpy(*arguments, adaptation, max_scale)
 
 
+def monitored_update_numpy(
+    state: np.ndarray,
+    covariance: np.ndarray,
+    dt: np.ndarray,
+    z: np.ndarray,
+    base: float,
+    noise_covariance: np.ndarray,
+    scale: np.ndarray,
+    ring: np.ndarray,
+    count: np.ndarray,
+    adaptation: Adaptation,
+    max_scale: float,
+) -> tuple[np.ndarray, ...]:
+    """Numpy reference of the monitored update (:mod:`stt_drake.core.consistency`; the kernel is
+    :func:`stt_drake.core._tracking.track_update_monitored`): predict with base·scale,
+    ν, window test, scale rule, extra noise, Joseph correction.
+
+    Returns:
+        (state, covariance, scale, ring, count, nis, test) as new arrays; test is +1 above
+        the window interval, −1 below, 0 inside.
+    """
+    n = z.shape[1]
+    x, p = predict(state, covariance, dt, base * scale)
+    innovation = z - x[:, :n]
+    s_matrix = p[:, :n, :n] + noise_covariance
+    nis = np.einsum(
+        "mi,mi->m", innovation, np.linalg.solve(s_matrix, innovation[..., None])[..., 0]
+    )
+    ring, count = ring.copy(), count.copy()
+    rows = np.arange(len(nis))
+    window = ring.shape[1]
+    ring[rows, count.astype(int) % window] = nis
+    count = count + 1.0
+    used = np.minimum(count, window).astype(int)
+    total = np.where(np.arange(window)[None, :] < used[:, None], ring, 0.0).sum(axis=1)
+    test = np.where(
+        total > adaptation.upper[used - 1],
+        1.0,
+        np.where(total < adaptation.lower[used - 1], -1.0, 0.0),
+    )
+    new_scale = scale.copy()
+    gain = adaptation.step_gain
+    if gain > 0.0:
+        step = np.minimum(nis / n - 1.0, adaptation.step_cap)
+        step = np.where(step < 0.0, adaptation.relax * step, step)
+        new_scale = np.clip(scale * np.exp(gain * step), 1.0, max_scale)
+        p = p + _process_noise(np.asarray(dt, dtype=float), base * (new_scale - scale), n)
+    x, p = correct(x, p, z, noise_covariance)
+    return x, p, new_scale, ring, count, nis, test
+
+
 @dataclass(frozen=True)
 class KalmanTracker:
     """The tracking rules of the module docstring, for slots in R^dimension.
@@ -451,3 +502,31 @@ def blend_beliefs(old: GaussianBelief, new: GaussianBelief, weight: float) -> Ga
         + w * (1.0 - w) * jump[:, :, None] * jump[:, None, :]
     )
     return GaussianBelief(mean=mean, covariance=covariance, active=new.active.copy())
+
+
+def consistency_stats(
+    stats: np.ndarray, before: TrackTable, after: TrackTable, t: float
+) -> np.ndarray:
+    """The running NIS statistics per slot (:mod:`stt_drake.core.consistency`), an array
+    (m, :data:`~stt_drake.core.consistency.CONSISTENCY_FIELDS`) of rows
+    ``[NIS sum, corrections, events, first event time (s; NaN: none), time spent
+    overconfident (s, closed episodes), start of the current episode (s; NaN: none),
+    largest noise scale]``, after the tracker update at t (s) from `before` to `after`
+    (monitored tables). An *event* (episode) starts at a correction whose window test is
+    above its interval (overconfident) and ends at the first correction inside or below
+    it, or when the track is lost or re-born."""
+    stats = stats.copy()
+    corrected = after.nis_count > before.nis_count
+    high = corrected & (after.test > 0.5)
+    failing = np.isfinite(stats[:, 5])
+    ends = failing & ((corrected & ~high) | (after.nis_count < before.nis_count) | ~after.active)
+    stats[corrected, 0] += after.nis[corrected]
+    stats[corrected, 1] += 1.0
+    stats[ends, 4] += t - stats[ends, 5]
+    stats[ends, 5] = np.nan
+    starts = high & ~failing
+    stats[starts, 2] += 1.0
+    stats[starts & np.isnan(stats[:, 3]), 3] = t
+    stats[starts, 5] = t
+    stats[:, 6] = np.maximum(stats[:, 6], np.where(after.active, after.scale, 0.0))
+    return stats

@@ -32,7 +32,7 @@ class TubeGuide(LeafSystem):
     """Outputs the tube's attraction point η(t) (`target`, n) on a route planned over the
     obstacles' predicted beliefs (:mod:`stt_drake.core.guide`, where the safety argument
     is: claims (ii)/(iii) of Theorem 3.2 hold for any η(t)). Connect `target` to the tube's
-    `target` input (:func:`stt_drake.build.stt.AddStt` with ``target_input=True``); the
+    `target` input (:func:`stt_drake.assembly.stt.AddStt` with ``target_input=True``); the
     task's own target stays the goal.
 
     Inputs: `tube` ([c, r], n + 1); `obstacle_belief` (the belief port, to notice a track

@@ -17,14 +17,13 @@ from pydrake.systems.framework import (
     ValueProducer,
 )
 
-from stt_drake.core.belief import GaussianBelief, ObstacleBelief, ObstacleTask, belief_size
+from stt_drake.core.belief import ObstacleBelief, ObstacleTask, PortBelief, belief_size
 from stt_drake.core.invariants import (
     INVARIANT_NAMES,
     InvariantTracker,
     RecoveryTracker,
     center_avoid_probability,
-    evaluate_invariants_packed,
-    evaluate_invariants_slots,
+    evaluate_invariants,
 )
 
 #: Default step-rate limit L (integrator steps per simulated second) of the watchdog, used
@@ -129,9 +128,10 @@ class InvariantMonitor(LeafSystem):
     probability itself rather than trusting the tube's diagnostics, so a bug in the tube
     cannot hide from it.
 
-    `task` holds each slot's r_o, ε, p_d. The margins use the active slots only (an
-    inactive slot's probabilities read 1); with `full_covariance` they use each Σ_j
-    exactly, else σ_j² = λ_max(Σ_j) (exact for Σ_j = σ_j² I)."""
+    `task` holds each slot's r_o, ε, p_d. The belief input is prepared once per change, as
+    the tube prepares its own (:meth:`ObstacleBelief.from_port`). The margins use the active
+    slots only (an inactive slot's probabilities read 1); with `full_covariance` they use
+    each Σ_j exactly, else σ_j² = λ_max(Σ_j) (exact for Σ_j = σ_j² I)."""
 
     def __init__(
         self, dimension: int, task: ObstacleTask, r_min: float, full_covariance: bool = False
@@ -140,7 +140,6 @@ class InvariantMonitor(LeafSystem):
         self._dimension = dimension
         self._r_min = r_min
         self._task = task
-        self._task_table = task.table()
         self._full_covariance = full_covariance
         count = task.count
         self._tube_port = self.DeclareVectorInputPort("tube", dimension + 1)
@@ -149,12 +148,19 @@ class InvariantMonitor(LeafSystem):
         )
         self._output_port = self.DeclareVectorInputPort("output", dimension)
         self._recovery_port = self.DeclareVectorInputPort("recovery", count)
+        self._belief = self.DeclareCacheEntry(
+            description="obstacle belief prepared for the margins",
+            value_producer=ValueProducer(
+                allocate=AbstractValue.Make(object()).Clone, calc=self._calc_belief
+            ),
+            prerequisites_of_calc={self.input_port_ticket(self._belief_port.get_index())},
+        )
         self._sample = self.DeclareCacheEntry(
             description="invariant margins",
             value_producer=ValueProducer(
                 allocate=AbstractValue.Make(object()).Clone, calc=self._calc_sample
             ),
-            prerequisites_of_calc={self.all_input_ports_ticket()},
+            prerequisites_of_calc={self.all_input_ports_ticket(), self._belief.ticket()},
         )
         depends = {self._sample.ticket()}
         self.margins_port = self.DeclareVectorOutputPort(
@@ -176,21 +182,24 @@ class InvariantMonitor(LeafSystem):
             prerequisites_of_calc=depends,
         )
 
+    def _calc_belief(self, context: Context, value: AbstractValue) -> None:
+        value.set_value(
+            ObstacleBelief.from_port(
+                self._belief_port.Eval(context), self._dimension, self._task, self._full_covariance
+            )
+        )
+
+    def belief(self, context: Context) -> PortBelief:
+        """The `obstacle_belief` input with the task numbers, as the margins read it."""
+        return self._belief.Eval(context)
+
     def _calc_sample(self, context: Context, value: AbstractValue) -> None:
         output = self._output_port.Eval(context)
         tube = self._tube_port.Eval(context)
-        if self._full_covariance:
-            sample = evaluate_invariants_slots(
-                output, tube, self._belief(context), self._task, True, self._r_min
-            )
-        else:
-            sample = evaluate_invariants_packed(
-                output, tube, self._belief_port.Eval(context), self._task_table, self._r_min
-            )
+        sample = evaluate_invariants(
+            output, tube[:-1], float(tube[-1]), self.belief(context), self._r_min
+        )
         value.set_value(sample)
-
-    def _belief(self, context: Context) -> GaussianBelief:
-        return GaussianBelief.from_vector(self._belief_port.Eval(context), self._dimension)
 
     def _calc_output_avoid(self, context: Context, output: BasicVector) -> None:
         output.SetFromVector(self._sample.Eval(context).output_avoid_probability)
@@ -202,10 +211,8 @@ class InvariantMonitor(LeafSystem):
         """q_j(c) − ε_j per slot at the tube centre (buffered radius r_o_j + r_min); an
         inactive slot reads 1 − ε_j (no obstacle there)."""
         tube = self._tube_port.Eval(context)
-        belief = self._belief(context)
-        law_belief = ObstacleBelief.of(belief, self._task, self._full_covariance)
-        q = center_avoid_probability(tube[:-1], law_belief, self._r_min)
-        return belief.per_slot(q, 1.0) - self._task.epsilon
+        q = center_avoid_probability(tube[:-1], self.belief(context), self._r_min)
+        return q - self._task.epsilon
 
     def attach(
         self,

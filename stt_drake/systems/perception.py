@@ -24,10 +24,10 @@ import numpy as np
 from pydrake.systems.framework import BasicVector, Context, DiscreteValues, LeafSystem
 
 from stt_drake.core.belief import GaussianBelief, belief_size
-from stt_drake.core.consistency import CONSISTENCY_FIELDS, consistency_stats
+from stt_drake.core.consistency import CONSISTENCY_FIELDS
 from stt_drake.core.motion import Motion, MotionTable
 from stt_drake.core.perception import Detections, SensorModel, TruthPath, detection_size
-from stt_drake.core.tracking import KalmanTracker, TrackTable, blend_beliefs
+from stt_drake.core.tracking import KalmanTracker, TrackTable, blend_beliefs, consistency_stats
 
 #: Relative slack when counting sensor periods (a latency of 3 periods is 3, not 2.999...).
 _PERIOD_SLACK = 1e-9
@@ -223,7 +223,7 @@ class ObstacleTracker(LeafSystem):
 
     Output `consistency` (m × :data:`~stt_drake.core.consistency.CONSISTENCY_FIELDS`,
     slot-major): each track's running NIS statistics
-    (:func:`stt_drake.core.consistency.consistency_stats`; zeros for an unmonitored tracker).
+    (:func:`stt_drake.core.tracking.consistency_stats`; zeros for an unmonitored tracker).
 
     Output `tracks`: the track table itself (:meth:`TrackTable.to_vector`), for a system
     that predicts further ahead (a guide). Output `belief_updates` (m): per slot, how many

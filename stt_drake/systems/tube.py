@@ -1,8 +1,23 @@
-"""SpatiotemporalTube: the STT centre as Drake state, radius and diagnostics as outputs."""
+"""SpatiotemporalTube: the STT centre as Drake state, radius and diagnostics as outputs.
+
+One system; how it moves its centre is chosen when it is built (`update_period`):
+
+* :class:`ContinuousCentre`: c is continuous state, ċ from Eq. (4) integrated by the
+  Simulator; recovery is q_j(c) ≤ ε_j.
+* :class:`FixedRateCentre`: c and r are discrete state (slots named by
+  :class:`PeriodLayout`), updated every h seconds by :meth:`stt_drake.core.tube.TubeLaw.advance`
+  and interpolated linearly in between; recovery is "period not certified for obstacle j".
+
+Each mode declares its state and events on the system and answers what differs: the centre,
+the `tube` output, the `recovery` output and ċ. The rest — the ports, the belief prepared
+once from the input, the law's evaluation, the diagnostics, the 3D circulation axes — is the
+system's, shared by both.
+"""
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -16,10 +31,15 @@ from pydrake.systems.framework import (
     ValueProducer,
 )
 
-from stt_drake.core.belief import GaussianBelief, ObstacleBelief, ObstacleTask, belief_size
+from stt_drake.core.belief import ObstacleBelief, ObstacleTask, PortBelief, belief_size
 from stt_drake.core.circulation import carry_circulation
 from stt_drake.core.fixed_rate import BeliefRateBounds
-from stt_drake.core.rules import NU_HINT, check_nu_for_count, checked_by
+from stt_drake.core.rules import (
+    NU_HINT,
+    check_continuous_for_covariance,
+    check_nu_for_count,
+    checked_by,
+)
 from stt_drake.core.tube import TubeEvaluation, TubeLaw
 
 
@@ -28,32 +48,22 @@ class SpatiotemporalTube(LeafSystem):
 
     Input `obstacle_belief` (mean, covariance and active flag per slot:
     :class:`stt_drake.core.belief.GaussianBelief`); `task` gives each slot's r_o, ε, p_d.
+    The input is prepared once per change (:meth:`ObstacleBelief.from_port`, :meth:`belief`).
     With ``full_covariance=True`` the law uses each Σ_j exactly
-    (:mod:`stt_drake.core.anisotropic_tube`; continuous mode only), else σ_j² = λ_max(Σ_j)
+    (:mod:`stt_drake.core.anisotropic_tube`; continuous mode only,
+    :func:`stt_drake.core.rules.check_continuous_for_covariance`), else σ_j² = λ_max(Σ_j)
     (exact for Σ_j = σ_j² I; :func:`stt_drake.core.belief.largest_sigma`). Only active slots
     reach ċ and r; an inactive slot's diagnostics read q = 1, d̂ = +∞, θ = 0. Outputs `tube`
     = [c, r] (n + 1), `diagnostics` = [q_j (m), d̂_j (m), θ_j (m)] and `recovery` (m): 1
     while the tube is recovering from obstacle j (its belief left the bounds the guarantee
     relies on; see :mod:`stt_drake.core.tube`), else 0.
 
-    Two modes:
-
-    * continuous (``update_period=None``): c is continuous state, ċ from Eq. (4)
-      (|ċ| ≤ max_center_speed, recovery where q_j ≤ ε_j) integrated by the Simulator with
-      error control and a bounded max step (the scenarios' default SimulatorConfig);
-      recovery is q_j(c) ≤ ε_j.
-    * fixed rate (``update_period=h``): at initialisation and then every h seconds
-      :meth:`TubeLaw.advance` computes the next centre and radius from the belief sampled
-      at the update, the way it runs on a robot; the output moves linearly from the values
-      at the update to those at the end of the period, and q_j(c(t), t) > ε_j and
-      r(t) ≤ d̂_j(c(t), t) are certified for the whole period from `rate_bounds` (required
-      in this mode: the guarantee needs to know how fast each belief may move). Between
-      updates the output costs an interpolation, no probability. Recovery is "period not
-      certified for obstacle j".
-
-    In continuous time the radius is evaluated at the current centre and belief, so
-    r ≤ min_j d̂_j at every instant; at a fixed rate it is a certified lower bound of that.
-    `diagnostics` always holds the law at the current centre and belief.
+    Modes (module docstring): continuous (``update_period=None``, :class:`ContinuousCentre`)
+    or fixed rate (``update_period=h``, :class:`FixedRateCentre`; `rate_bounds` required:
+    the guarantee needs to know how fast each belief may move). In continuous time the
+    radius is evaluated at the current centre and belief, so r ≤ min_j d̂_j at every instant;
+    at a fixed rate it is a certified lower bound of that. `diagnostics` always holds the law
+    at the current centre and belief.
 
     In 3D the null-space directions follow circulation axes held in the Context (chosen
     when an obstacle activates, carried while it stays active; :func:`carry_circulation`),
@@ -77,11 +87,9 @@ class SpatiotemporalTube(LeafSystem):
         full_covariance: bool = False,
     ) -> None:
         super().__init__()
-        if full_covariance and update_period is not None:
-            raise ValueError(
-                "full_covariance: the fixed-rate tube's period guarantee is derived for "
-                "isotropic beliefs (sigma) only; use update_period=None (continuous) with "
-                "covariances"
+        with checked_by("SpatiotemporalTube", hint="use update_period=None with covariances"):
+            check_continuous_for_covariance(
+                full_covariance, update_period is not None, "update_period", update_period, "None"
             )
         if update_period is not None and rate_bounds is None:
             raise ValueError(
@@ -93,12 +101,9 @@ class SpatiotemporalTube(LeafSystem):
             check_nu_for_count(law.nu, law.r_min, task.count)
         self._law = law
         self._dimension = len(initial_center)
-        self._task = task
-        self._task_table = task.table()
+        self.task = task
         self._full_covariance = full_covariance
-        obstacle_count = self._count = task.count
-        self.update_period = update_period
-        self._rate_bounds = rate_bounds
+        obstacle_count = task.count
         self._belief_port = self.DeclareVectorInputPort(
             "obstacle_belief", belief_size(obstacle_count, self._dimension)
         )
@@ -106,52 +111,43 @@ class SpatiotemporalTube(LeafSystem):
             self.DeclareVectorInputPort("target", self._dimension) if target_input else None
         )
         initial_center = np.asarray(initial_center, dtype=float)
-        circulates = self._dimension == 3 and obstacle_count > 0
+        #: Whether circulation axes are held (3D with obstacles).
+        self.circulates = self._dimension == 3 and obstacle_count > 0
         self._circulation_index = (
-            self.DeclareDiscreteState(np.zeros(3 * obstacle_count)) if circulates else None
+            self.DeclareDiscreteState(np.zeros(3 * obstacle_count)) if self.circulates else None
         )
-        if update_period is None:
-            self.DeclareContinuousState(BasicVector(initial_center))
-            tickets = {self.xc_ticket(), self.xd_ticket()}
-            if circulates:
-                self.DeclarePerStepDiscreteUpdateEvent(self._carry_circulation)
-        else:
-            # [c, r] at the last update, [c, r] at the end of its period, its time, flags
-            self._state_index = self.DeclareDiscreteState(
-                _period_state(initial_center, obstacle_count)
-            )
-            # The first update at initialisation, then every period on the grid k·h with
-            # offset 0 (the grid Drake puts a logger's samples on: fewer update and log times
-            # one rounding apart, each of which costs the integrator a ~1e-15 s step); the
-            # periodic event at t = 0 finds that update done and leaves it.
-            self.DeclareInitializationDiscreteUpdateEvent(self._discrete_update)
-            self.DeclarePeriodicDiscreteUpdateEvent(update_period, 0.0, self._discrete_update)
-            tickets = {self.xd_ticket(), self.time_ticket()}
+        self._mode: ContinuousCentre | FixedRateCentre = (
+            ContinuousCentre()
+            if update_period is None
+            else FixedRateCentre(update_period, rate_bounds)
+        )
+        tickets = self._mode.declare(self, initial_center)
         # The law with the target in use: rebuilt only when the `target` input changes.
         self._target_law = (
-            self.DeclareCacheEntry(
-                description="tube law for the current target",
-                value_producer=ValueProducer(
-                    allocate=AbstractValue.Make(object()).Clone, calc=self._calc_target_law
-                ),
-                prerequisites_of_calc={self.input_port_ticket(self._target_port.get_index())},
+            self._declare_cache(
+                "tube law for the current target",
+                self._calc_target_law,
+                {self.input_port_ticket(self._target_port.get_index())},
             )
             if target_input
             else None
         )
-        self._evaluation = self.DeclareCacheEntry(
-            description="tube law evaluation",
-            # (TubeEvaluation, [c, r] with the law's exact radius)
-            value_producer=ValueProducer(
-                allocate=AbstractValue.Make(object()).Clone, calc=self._calc_evaluation
-            ),
-            prerequisites_of_calc=tickets | {self.all_input_ports_ticket()},
+        self._belief = self._declare_cache(
+            "obstacle belief prepared for the law",
+            self._calc_belief,
+            {self.input_port_ticket(self._belief_port.get_index())},
+        )
+        # (TubeEvaluation, [c, r] with the law's exact radius)
+        self._evaluation = self._declare_cache(
+            "tube law evaluation",
+            self._calc_evaluation,
+            tickets | {self.all_input_ports_ticket(), self._belief.ticket()},
         )
         depends = {self._evaluation.ticket()}
         self.DeclareVectorOutputPort(
             "tube",
             self._dimension + 1,
-            self._calc_tube,
+            lambda context, output: output.SetFromVector(self._mode.tube_value(context)),
             prerequisites_of_calc=tickets | {self.all_input_ports_ticket()},
         )
         self.DeclareVectorOutputPort(
@@ -160,53 +156,56 @@ class SpatiotemporalTube(LeafSystem):
         self.DeclareVectorOutputPort(
             "recovery",
             obstacle_count,
-            self._calc_recovery,
+            lambda context, output: output.SetFromVector(self._mode.recovery(context)),
             prerequisites_of_calc=depends | {self.xd_ticket()},
+        )
+
+    def _declare_cache(self, description: str, calc: object, prerequisites: set) -> object:
+        """A cache entry holding any Python object, computed by `calc`."""
+        return self.DeclareCacheEntry(
+            description=description,
+            value_producer=ValueProducer(allocate=AbstractValue.Make(object()).Clone, calc=calc),
+            prerequisites_of_calc=prerequisites,
         )
 
     @property
     def law(self) -> TubeLaw:
         return self._law
 
+    @property
+    def update_period(self) -> float | None:
+        """h of the fixed-rate tube (s); None in continuous time."""
+        return self._mode.update_period
+
     def center(self, context: Context) -> np.ndarray:
         """The tube centre c(t) in `context` (interpolated within a fixed-rate period)."""
-        if self.update_period is None:
-            return context.get_continuous_state_vector().CopyToVector()
-        return np.array(self._interpolated(context)[:-1])
-
-    def _interpolated(self, context: Context) -> list[float]:
-        """[c(t), r(t)] of a fixed-rate tube: linear from the values at the last update to
-        those at the end of its period (r is NaN before the first update). Scalar Python
-        arithmetic on the n + 1 values: the output port's hot path, cheaper than numpy's
-        per-call overhead."""
-        size = self._dimension + 1
-        values = context.get_discrete_state(self._state_index).value()[: 2 * size + 1].tolist()
-        fraction = (context.get_time() - values[-1]) / self.update_period
-        fraction = min(max(fraction, 0.0), 1.0)
-        start, end = values[:size], values[size:-1]
-        return [a + fraction * (b - a) for a, b in zip(start, end, strict=True)]
+        return self._mode.center(context)
 
     def set_center(self, context: Context, center: np.ndarray) -> None:
         """Place the centre at `center` in `context` (held there until the next update in
         fixed-rate mode)."""
-        center = np.asarray(center, dtype=float)
-        if self.update_period is None:
-            context.SetContinuousState(center)
-            return
-        state = _period_state(center, self._count, context.get_time())
-        context.SetDiscreteState(self._state_index, state)
+        self._mode.set_center(context, np.asarray(center, dtype=float))
 
-    def _circulation(self, context: Context) -> np.ndarray | None:
+    def belief(self, context: Context) -> PortBelief:
+        """The `obstacle_belief` input with the task numbers, as the law reads it (made
+        once per input change)."""
+        return self._belief.Eval(context)
+
+    def _calc_belief(self, context: Context, value: AbstractValue) -> None:
+        value.set_value(
+            ObstacleBelief.from_port(
+                self._belief_port.Eval(context), self._dimension, self.task, self._full_covariance
+            )
+        )
+
+    def circulation(self, context: Context) -> np.ndarray | None:
+        """The circulation axes (slots, 3) held in `context` (None: not 3D)."""
         if self._circulation_index is None:
             return None
         axes = context.get_discrete_state(self._circulation_index).CopyToVector()
-        return axes.reshape(self._count, 3)
+        return axes.reshape(self.task.count, 3)
 
-    def _belief(self, context: Context) -> GaussianBelief:
-        """The belief port's value in `context`, unpacked."""
-        return GaussianBelief.from_vector(self._belief_port.Eval(context), self._dimension)
-
-    def _law_in(self, context: Context) -> TubeLaw:
+    def law_in(self, context: Context) -> TubeLaw:
         """The law with the target in use: ``law.target``, or the `target` input if declared."""
         if self._target_law is None:
             return self._law
@@ -216,17 +215,11 @@ class SpatiotemporalTube(LeafSystem):
         value.set_value(self._law.with_target(self._target_port.Eval(context)))
 
     def _calc_evaluation(self, context: Context, value: AbstractValue) -> None:
-        law = self._law_in(context)
+        law = self.law_in(context)
         center = self.center(context)
-        circulation = self._circulation(context)
-        if self._full_covariance:
-            evaluation = law.evaluate_slots(
-                center, self._belief(context), self._task, True, circulation=circulation
-            )
-        else:
-            evaluation = law.evaluate_packed(
-                center, self._belief_port.Eval(context), self._task_table, circulation=circulation
-            )
+        evaluation = law.evaluate(
+            center, self.belief(context), circulation=self.circulation(context)
+        )
         tube = np.empty(self._dimension + 1)  # the `tube` port value, [c, r]
         tube[:-1] = center
         tube[-1] = evaluation.radius
@@ -239,17 +232,13 @@ class SpatiotemporalTube(LeafSystem):
             )
         value.set_value((evaluation, tube))
 
+    def evaluated(self, context: Context) -> tuple[TubeEvaluation, np.ndarray]:
+        """The cached (law evaluation, [c, r] with the law's exact radius) in `context`."""
+        return self._evaluation.Eval(context)
+
     def evaluation(self, context: Context) -> TubeEvaluation:
         """The cached law evaluation (ċ, r, q_j, d̂_j, θ_j) in `context`."""
         return self._evaluation.Eval(context)[0]
-
-    def _calc_tube(self, context: Context, output: BasicVector) -> None:
-        if self.update_period is not None:
-            tube = self._interpolated(context)
-            if not math.isnan(tube[-1]):  # certified at the update (before it: the law's)
-                output.SetFromVector(tube)
-                return
-        output.SetFromVector(self._evaluation.Eval(context)[1])
 
     def _calc_diagnostics(self, context: Context, output: BasicVector) -> None:
         evaluation = self.evaluation(context)
@@ -259,21 +248,12 @@ class SpatiotemporalTube(LeafSystem):
             )
         )
 
-    def _calc_recovery(self, context: Context, output: BasicVector) -> None:
-        if self.update_period is not None:
-            state = context.get_discrete_state(self._state_index).value()
-            output.SetFromVector(state[2 * self._dimension + 3 :])
-            return
-        epsilon = self._task.epsilon  # an inactive slot reads q = 1 > ε: never recovering
-        output.SetFromVector((self.evaluation(context).avoid_probability <= epsilon) * 1.0)
-
     def DoCalcTimeDerivatives(  # noqa: N802 (Drake API)
         self, context: Context, derivatives: ContinuousState
     ) -> None:
-        if self.update_period is None:  # a fixed-rate tube has no continuous state
-            derivatives.get_mutable_vector().SetFromVector(self.evaluation(context).center_rate)
+        self._mode.derivatives(context, derivatives)
 
-    def _carry(
+    def carry(
         self,
         context: Context,
         discrete_state: DiscreteValues,
@@ -284,58 +264,190 @@ class SpatiotemporalTube(LeafSystem):
         """Write the circulation axes after this step (:func:`carry_circulation`) at
         `center` with θ_j evaluated there; False (nothing written) when no obstacle is
         active and no axis is held."""
-        axes = self._circulation(context)
+        axes = self.circulation(context)
         active = theta > 0.0
         if not np.any(active) and not np.any(axes):
             return False
-        target = self._law_in(context).target
+        target = self.law_in(context).target
         carried = carry_circulation(axes, center, mean, active, target - center)
         discrete_state.set_value(self._circulation_index, carried.ravel())
         return True
 
+
+class ContinuousCentre:
+    """The continuous-time tube: c is continuous state, ċ = the law's centre rate (Eq. (4),
+    |ċ| ≤ max_center_speed, recovery where q_j ≤ ε_j), integrated by the Simulator with error
+    control and a bounded max step (the scenarios' default SimulatorConfig). The radius is
+    evaluated at the current centre and belief, so r ≤ min_j d̂_j at every instant. 3D
+    circulation axes are carried at every Simulator step."""
+
+    update_period = None
+
+    def declare(self, tube: SpatiotemporalTube, initial_center: np.ndarray) -> set:
+        """Declare c on `tube`; the tickets of what the centre depends on."""
+        self._tube = tube
+        tube.DeclareContinuousState(BasicVector(initial_center))
+        if tube.circulates:
+            tube.DeclarePerStepDiscreteUpdateEvent(self._carry_circulation)
+        return {tube.xc_ticket(), tube.xd_ticket()}
+
+    def center(self, context: Context) -> np.ndarray:
+        return context.get_continuous_state_vector().CopyToVector()
+
+    def set_center(self, context: Context, center: np.ndarray) -> None:
+        context.SetContinuousState(center)
+
+    def tube_value(self, context: Context) -> np.ndarray:
+        """The `tube` output [c, r]: the law's exact radius at the current centre."""
+        return self._tube.evaluated(context)[1]
+
+    def recovery(self, context: Context) -> np.ndarray:
+        """1.0 where q_j(c) ≤ ε_j (an inactive slot reads q = 1 > ε: never recovering)."""
+        q = self._tube.evaluation(context).avoid_probability
+        return (q <= self._tube.task.epsilon) * 1.0
+
+    def derivatives(self, context: Context, derivatives: ContinuousState) -> None:
+        derivatives.get_mutable_vector().SetFromVector(self._tube.evaluation(context).center_rate)
+
     def _carry_circulation(self, context: Context, discrete_state: DiscreteValues) -> EventStatus:
-        center, theta = self.center(context), self.evaluation(context).theta
-        if self._carry(context, discrete_state, center, self._belief(context).mean, theta):
+        tube = self._tube
+        center, theta = self.center(context), tube.evaluation(context).theta
+        if tube.carry(context, discrete_state, center, tube.belief(context).slots.mean, theta):
             return EventStatus.Succeeded()
         return EventStatus.DidNothing()  # nothing active, nothing held: no state change
 
-    def _discrete_update(self, context: Context, discrete_state: DiscreteValues) -> None:
-        law = self._law_in(context)
-        slots = self._belief(context)
+
+@dataclass(frozen=True)
+class PeriodLayout:
+    """The slots of a fixed-rate tube's discrete state vector, for dimension n and
+    `count` obstacle slots: c and r at the last update, c and r at the end of its period,
+    the update time, and one recovery flag per obstacle (1 = not certified)."""
+
+    dimension: int
+    count: int
+
+    @property
+    def start_center(self) -> slice:
+        return slice(0, self.dimension)
+
+    @property
+    def start_radius(self) -> int:
+        return self.dimension
+
+    @property
+    def end_center(self) -> slice:
+        return slice(self.dimension + 1, 2 * self.dimension + 1)
+
+    @property
+    def end_radius(self) -> int:
+        return 2 * self.dimension + 1
+
+    @property
+    def time(self) -> int:
+        return 2 * self.dimension + 2
+
+    @property
+    def recovery(self) -> slice:
+        return slice(2 * self.dimension + 3, None)
+
+    def held(self, center: np.ndarray, time: float = 0.0) -> np.ndarray:
+        """The state with the centre held at `center`, no radius yet and nothing
+        recovering."""
+        held = [*center, math.nan]
+        return np.concatenate([held, held, [time], np.zeros(self.count)])
+
+
+class FixedRateCentre:
+    """The fixed-rate tube (update period h): at initialisation and then every h seconds
+    :meth:`TubeLaw.advance` computes the next centre and radius from the belief sampled at
+    the update, the way it runs on a robot; the output moves linearly from the values at the
+    update to those at the end of the period, and q_j(c(t), t) > ε_j and
+    r(t) ≤ d̂_j(c(t), t) are certified for the whole period from `rate_bounds`. Between
+    updates the output costs an interpolation, no probability. Every slot must be active
+    (the rate bounds are per obstacle)."""
+
+    def __init__(self, update_period: float, rate_bounds: BeliefRateBounds) -> None:
+        self.update_period = update_period
+        self._rate_bounds = rate_bounds
+
+    def declare(self, tube: SpatiotemporalTube, initial_center: np.ndarray) -> set:
+        """Declare the period state and the update events on `tube`; the tickets of what
+        the centre depends on."""
+        self._tube = tube
+        self._layout = PeriodLayout(len(initial_center), tube.task.count)
+        self._state_index = tube.DeclareDiscreteState(self._layout.held(initial_center))
+        # The first update at initialisation, then every period on the grid k·h with
+        # offset 0 (the grid Drake puts a logger's samples on: fewer update and log times
+        # one rounding apart, each of which costs the integrator a ~1e-15 s step); the
+        # periodic event at t = 0 finds that update done and leaves it.
+        tube.DeclareInitializationDiscreteUpdateEvent(self._update)
+        tube.DeclarePeriodicDiscreteUpdateEvent(self.update_period, 0.0, self._update)
+        return {tube.xd_ticket(), tube.time_ticket()}
+
+    def _interpolated(self, context: Context) -> list[float]:
+        """[c(t), r(t)]: linear from the values at the last update to those at the end of
+        its period (r is NaN before the first update). Scalar Python arithmetic on the
+        n + 1 values: the output port's hot path, cheaper than numpy's per-call overhead."""
+        layout = self._layout
+        size = layout.dimension + 1
+        values = context.get_discrete_state(self._state_index).value()[: layout.time + 1]
+        values = values.tolist()
+        fraction = (context.get_time() - values[layout.time]) / self.update_period
+        fraction = min(max(fraction, 0.0), 1.0)
+        start, end = values[:size], values[size : layout.time]
+        return [a + fraction * (b - a) for a, b in zip(start, end, strict=True)]
+
+    def center(self, context: Context) -> np.ndarray:
+        return np.array(self._interpolated(context)[:-1])
+
+    def set_center(self, context: Context, center: np.ndarray) -> None:
+        """Hold the centre at `center` until the next update."""
+        context.SetDiscreteState(self._state_index, self._layout.held(center, context.get_time()))
+
+    def tube_value(self, context: Context) -> list[float] | np.ndarray:
+        """The `tube` output: the certified interpolation (before the first update: the
+        law's)."""
+        tube = self._interpolated(context)
+        if math.isnan(tube[-1]):
+            return self._tube.evaluated(context)[1]
+        return tube
+
+    def recovery(self, context: Context) -> np.ndarray:
+        """The flags of the last update: 1.0 where the period was not certified."""
+        return context.get_discrete_state(self._state_index).value()[self._layout.recovery]
+
+    def derivatives(self, context: Context, derivatives: ContinuousState) -> None:
+        """No continuous state."""
+
+    def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
+        tube = self._tube
+        belief = tube.belief(context)
+        slots = belief.slots
         if not slots.active.all():
             raise RuntimeError(
                 f"obstacle_belief: slots {np.flatnonzero(~slots.active).tolist()} inactive at "
                 f"t = {context.get_time():.6g} s; the fixed-rate tube's rate bounds need every "
                 "slot active (run a tracked belief in continuous time)"
             )
-        belief = ObstacleBelief.of(slots, self._task)
+        layout = self._layout
         # `discrete_state` holds the current values: update them in place.
         state = discrete_state.get_mutable_value(self._state_index)
-        n = self._dimension
-        if state[2 * n + 2] == context.get_time() and not math.isnan(state[n]):
+        if state[layout.time] == context.get_time() and not math.isnan(state[layout.start_radius]):
             return  # this instant's update is done (initialisation, then the grid at t = 0)
-        reached = state[n + 1 : 2 * n + 1].copy()  # the centre now (end of the last period)
-        update = law.advance(
+        reached = state[layout.end_center].copy()  # the centre now (end of the last period)
+        update = tube.law_in(context).advance(
             reached,
             belief,
             self.update_period,
             self._rate_bounds,
-            self._circulation(context),
-            radius=state[2 * n + 1],
+            tube.circulation(context),
+            radius=state[layout.end_radius],
         )
-        state[:n] = reached
-        state[n] = update.start_radius
-        state[n + 1 : 2 * n + 1] = update.center
-        state[2 * n + 1] = update.end_radius
-        state[2 * n + 2] = context.get_time()
-        state[2 * n + 3 :] = ~update.certified
-        if self._circulation_index is not None:
-            self._carry(context, discrete_state, update.center, belief.mean, update.theta)
-
-
-def _period_state(center: np.ndarray, count: int, time: float = 0.0) -> np.ndarray:
-    """A fixed-rate tube's state with the centre held at `center`, no radius yet and
-    nothing recovering: [c and r at the update, c and r at the end of the period, the update
-    time, one recovery flag per obstacle (1 = not certified)]."""
-    held = [*center, math.nan]
-    return np.concatenate([held, held, [time], np.zeros(count)])
+        state[layout.start_center] = reached
+        state[layout.start_radius] = update.start_radius
+        state[layout.end_center] = update.center
+        state[layout.end_radius] = update.end_radius
+        state[layout.time] = context.get_time()
+        state[layout.recovery] = ~update.certified
+        if tube.circulates:
+            tube.carry(context, discrete_state, update.center, slots.mean, update.theta)

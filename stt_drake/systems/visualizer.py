@@ -41,7 +41,7 @@ from pydrake.systems.framework import (
 )
 
 from stt_drake.core.anisotropic import eigen_decomposition, level_set_radii
-from stt_drake.core.belief import GaussianBelief, ObstacleTask, belief_size, largest_sigma
+from stt_drake.core.belief import ObstacleBelief, ObstacleTask, belief_size
 from stt_drake.core.probability import level_set_radius
 
 #: Default publish period of the live view (s): 30 frames per second.
@@ -184,37 +184,43 @@ class TubeVisualizer(LeafSystem):
         tube = self._tube.Eval(context)
         meshcat.SetTransform(f"{prefix}/tube", RigidTransform(self._lift(tube[:-1])), t)
         self._set_scale(f"{prefix}/tube/ball", float(tube[-1]), t)
-        belief = GaussianBelief.from_vector(self._belief.Eval(context), self._n)
-        n = self._n
-        task = self._task
-        for j in range(self._count):
-            base = f"{prefix}/obstacles/{j}"
-            self._set_visible(base, bool(belief.active[j]), t)
-            if not belief.active[j]:
-                continue
-            r_o = float(task.radius[j])
-            names = ("epsilon_set", "p_d_set")
-            levels = (float(task.epsilon[j]), float(task.p_d[j]))
-            if self._full_covariance:
-                rotation, semi_axes = self._ellipsoid(belief.covariance[j], r_o, levels)
-                pose = RigidTransform(RotationMatrix(rotation), self._lift(belief.mean[j]))
-                meshcat.SetTransform(base, pose, t)
-                self._set_scale(f"{base}/body", r_o, t)
-                for name, axes in zip(names, semi_axes, strict=True):
-                    self._set_scale(f"{base}/{name}", axes, t)
-                continue
-            meshcat.SetTransform(base, RigidTransform(self._lift(belief.mean[j])), t)
-            self._set_scale(f"{base}/body", r_o, t)
-            sigma = float(largest_sigma(belief.covariance[j]))
-            for name, level in zip(names, levels, strict=True):
-                d = _level_set_radius(level, sigma, r_o, n) if sigma > 0 else r_o
-                self._set_scale(f"{base}/{name}", max(d, r_o) if np.isfinite(d) else r_o, t)
+        belief = ObstacleBelief.from_port(
+            self._belief.Eval(context), self._n, self._task, self._full_covariance
+        )
+        k = 0  # obstacle k of the belief is the k-th active slot
+        for j, active in enumerate(belief.slots.active.tolist()):
+            self._set_visible(f"{prefix}/obstacles/{j}", active, t)
+            if active:
+                self._draw_obstacle(f"{prefix}/obstacles/{j}", belief, k, t)
+                k += 1
         if self._output is not None:
             y = self._output.Eval(context)
             meshcat.SetTransform(f"{prefix}/robot", RigidTransform(self._lift(y)), t)
         meshcat.SetSimulationTime(t)
         meshcat.SetSliderValue(TIME_SLIDER, t)
         return EventStatus.Succeeded()
+
+    def _draw_obstacle(self, base: str, belief: ObstacleBelief, k: int, t: float) -> None:
+        """Pose and scale obstacle k of `belief` at the node `base`: its r_o ball and its
+        ε and p_d level sets (ellipsoids with full covariances)."""
+        meshcat = self._meshcat
+        r_o = float(belief.radius[k])
+        names = ("epsilon_set", "p_d_set")
+        levels = (float(belief.epsilon[k]), float(belief.p_d[k]))
+        if belief.covariance is not None:
+            rotation, semi_axes = self._ellipsoid(belief.covariance[k], r_o, levels)
+            pose = RigidTransform(RotationMatrix(rotation), self._lift(belief.mean[k]))
+            meshcat.SetTransform(base, pose, t)
+            self._set_scale(f"{base}/body", r_o, t)
+            for name, axes in zip(names, semi_axes, strict=True):
+                self._set_scale(f"{base}/{name}", axes, t)
+        else:
+            meshcat.SetTransform(base, RigidTransform(self._lift(belief.mean[k])), t)
+            self._set_scale(f"{base}/body", r_o, t)
+            sigma = float(belief.sigma[k])
+            for name, level in zip(names, levels, strict=True):
+                d = _level_set_radius(level, sigma, r_o, self._n) if sigma > 0 else r_o
+                self._set_scale(f"{base}/{name}", max(d, r_o) if np.isfinite(d) else r_o, t)
 
 
 def AddTubeVisualizer(  # noqa: N802 (Drake's naming of builder functions)

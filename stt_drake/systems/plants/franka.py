@@ -337,4 +337,3 @@ class ExternalJerks(LeafSystem):
     def _calc_force(self, context: Context, output: BasicVector) -> None:
         t = context.get_time()
         output.SetFromVector(sum((jerk.force_at(t) for jerk in self._jerks), np.zeros(3)))
-
