@@ -1,5 +1,5 @@
 """`stt-drake compare`: STT against the chance-constrained CBF-QP and the potential field
-(:mod:`stt_drake.build.baselines`) on one scenario.
+(:mod:`stt_drake.assembly.baselines`) on one scenario.
 
 Per controller: one closed-loop simulation of the scenario (same plant, disturbance and
 obstacles; STT through :func:`stt_drake.run.simulate`: ``stt`` is the paper's reactive tube
@@ -21,7 +21,8 @@ closed loop has c = y and r = 0, and only the campaign's output check is reporte
 * `t_reach_s` (s, null if never), `path_length_m`, `min_clearance_m` = min over time and
   obstacles of ‖y − μ_j‖ − r_o_j;
 * `step_us_median`: the controller's cost per control step (µs, median, this process): STT,
-  the tube law's :meth:`~stt_drake.core.tube.TubeLaw.evaluate_packed` plus
+  the tube law's :meth:`~stt_drake.core.tube.TubeLaw.evaluate` on the belief as the tube
+  prepares it (:meth:`~stt_drake.core.belief.ObstacleBelief.from_port`) plus
   :meth:`~stt_drake.core.control.FunnelController.control_from_tube` on the logged samples;
   CBF, the controller's own timing of its updates (belief, rows, QP); APF, the controller
   system's `control` port evaluated on the logged samples (Drake's port overhead included);
@@ -53,14 +54,14 @@ from typing import Any
 
 import numpy as np
 
-from stt_drake.build.baselines import (
+from stt_drake.assembly.baselines import (
     BASELINES,
     SOLVERS,
     BaselineError,
     build_baseline_diagram,
     nominal_plant,
 )
-from stt_drake.build.laws import make_funnel_controller, make_tube_law
+from stt_drake.assembly.laws import make_funnel_controller, make_tube_law
 from stt_drake.campaign import (
     CampaignError,
     CampaignSpec,
@@ -80,6 +81,7 @@ from stt_drake.compare_checks import (
     comparison_folder,
 )
 from stt_drake.config import GuideConfig, OmniRobot, Quadrotor, Scenario
+from stt_drake.core.belief import ObstacleBelief
 from stt_drake.core.crowd_metrics import (
     DEFAULT_COMFORT_DISTANCE,
     check_comfort_distance,
@@ -124,8 +126,6 @@ MODEL_ERRORS: dict[type, tuple[tuple[str, dict[str, float]], ...]] = {
     ),
 }
 TABLE_FILE, FIGURE_FILE = "comparison.md", "comparison.png"
-#: How many times the figure draws the obstacles' means at.
-_FIGURE_TIMES = 4
 
 
 @dataclass
@@ -157,9 +157,9 @@ def _plant_states(log: RunLog, stages: int) -> np.ndarray:
 
 def stt_step_time_us(scenario: Scenario, log: RunLog) -> float:
     """Median µs of one STT control step on the logged samples: the tube law
-    (``evaluate_packed``) and the funnel controller (``control_from_tube``)."""
+    (``evaluate`` on the prepared belief, as the tube system does) and the funnel controller
+    (``control_from_tube``)."""
     law, controller = make_tube_law(scenario), make_funnel_controller(scenario)
-    table = log.task.table()
     vectors = log.rows("belief")
     states = _plant_states(log, controller.stages)
     axes = np.zeros((log.count, 3)) if log.dimension == 3 else None
@@ -167,7 +167,8 @@ def stt_step_time_us(scenario: Scenario, log: RunLog) -> float:
     for k in range(log.samples):
         tube = np.append(log.center[k], log.radius[k])
         start = time.perf_counter()
-        law.evaluate_packed(log.center[k], vectors[k], table, circulation=axes)
+        belief = ObstacleBelief.from_port(vectors[k], log.dimension, log.task)
+        law.evaluate(log.center[k], belief, circulation=axes)
         controller.control_from_tube(log.t[k], states[k], tube)
         times[k] = time.perf_counter() - start
     return float(1e6 * np.median(times))
@@ -194,8 +195,8 @@ def _port_step_time_us(system: PotentialFieldController, log: RunLog, order: int
 def simulate_stt(scenario: Scenario) -> ControllerRun:
     """The STT closed loop (:func:`stt_drake.run.simulate`) and its step time."""
     result = simulate(scenario)
-    limits = result.metrics.get("limits", {}).values()
-    finished = result.metrics["stop_reason"] is None and all(r["holds"] for r in limits)
+    limits = result.metrics.plant.get("limits", {}).values()
+    finished = result.metrics.stop_reason is None and all(r["holds"] for r in limits)
     return ControllerRun(result.log, finished, stt_step_time_us(scenario, result.log))
 
 
@@ -294,17 +295,17 @@ def _check_input(
     out_dir: Path,
     options: dict[str, Any],
 ) -> None:
-    """Refuse bad input before any work (:class:`CompareError`, naming the option);
+    """Refuse bad input before any work (:class:`CompareError`, naming the parameter);
     `options`: ``workers``, ``scheduler``, ``model_error``, ``solver``,
     ``comfort_distance``."""
     unknown = [c for c in controllers if c not in CONTROLLERS]
     if not controllers or unknown:
         raise CompareError(
-            f"--controllers: each must be one of {', '.join(CONTROLLERS)} (got "
+            f"`controllers`: each must be one of {', '.join(CONTROLLERS)} (got "
             f"{', '.join(map(repr, unknown or controllers)) or 'none'})"
         )
     if len(set(controllers)) != len(controllers):
-        raise CompareError(f"--controllers: each controller once (got {', '.join(controllers)})")
+        raise CompareError(f"`controllers`: each controller once (got {', '.join(controllers)})")
     if any(c in BASELINES for c in controllers):
         try:
             nominal_plant(scenario)
@@ -313,9 +314,9 @@ def _check_input(
     check_common(scenario, controllers, options["workers"])
     if options["model_error"] and type(scenario.plant) not in MODEL_ERRORS:
         raise CompareError(
-            f"--model-error: no model-error variants for the {type(scenario.plant).__name__} "
+            f"`model_error`: no model-error variants for the {type(scenario.plant).__name__} "
             f"plant of scenario {scenario.name!r} (only for "
-            f"{', '.join(plant.__name__ for plant in MODEL_ERRORS)}); drop --model-error"
+            f"{', '.join(plant.__name__ for plant in MODEL_ERRORS)}); drop `model_error`"
         )
     try:
         check_runs(runs)
@@ -324,12 +325,12 @@ def _check_input(
     except CampaignError as error:
         raise CompareError(str(error)) from None
     try:
-        check_comfort_distance(options["comfort_distance"], "--comfort-distance")
+        check_comfort_distance(options["comfort_distance"], "`comfort_distance`")
     except RuleError as error:
         raise CompareError(str(error)) from None
     if options["solver"] not in SOLVERS:
         raise CompareError(
-            f"--solver: must be one of {', '.join(SOLVERS)} (got {options['solver']!r})"
+            f"`solver`: must be one of {', '.join(SOLVERS)} (got {options['solver']!r})"
         )
     check_out(out_dir)
 
@@ -378,14 +379,14 @@ def compare(
             comparison without `resume`), before any simulation.
         CampaignStoppedError: a campaign could not finish.
     """
-    from stt_drake.build import load_scenario
+    from stt_drake.assembly import load_scenario
     from stt_drake.config import ScenarioError
 
     path = Path(scenario_path)
     try:
         scenario = load_scenario(path)
     except ScenarioError as error:
-        raise CompareError(f"SCENARIO: bad scenario {path}: {error}") from None
+        raise CompareError(f"`scenario_path`: bad scenario {path}: {error}") from None
     options = {"workers": workers, "scheduler": scheduler, "model_error": model_error}
     more = {"solver": solver, "comfort_distance": comfort_distance}
     _check_input(scenario, controllers, runs, out_dir, {**options, **more})
@@ -398,8 +399,8 @@ def compare(
     with comparison_folder(out_dir, resume, folders):
         if resume and (out_dir / DRAWS_FILE).exists():
             raise CompareError(
-                f"--resume: {out_dir} holds a comparison over draws ({DRAWS_FILE}); resume "
-                "it with --draws, or choose another --out"
+                f"`resume`: {out_dir} holds a comparison over draws ({DRAWS_FILE}); resume "
+                "it with `draws`, or choose another `out_dir`"
             )
         if resume:
             print(
@@ -441,8 +442,9 @@ def compare(
         }
         write_json(out_dir / COMPARISON_FILE, document)
         (out_dir / TABLE_FILE).write_text(comparison_table(rows) + "\n")
-        figure = plot_comparison(figure_runs, rows)
-        figure.savefig(out_dir / FIGURE_FILE, dpi=120)
+        from stt_drake.plotting.compare import plot_comparison
+
+        plot_comparison(figure_runs, rows).savefig(out_dir / FIGURE_FILE, dpi=120)
     return document
 
 
@@ -501,68 +503,3 @@ def markdown_table(rows: Sequence[dict[str, Any]], columns: Sequence[tuple[str, 
 def comparison_table(rows: Sequence[dict[str, Any]]) -> str:
     """The rows as a markdown table (comparison.md, and what the command prints)."""
     return markdown_table(rows, _COLUMNS)
-
-
-#: The metrics the figure's bar charts show: (row key, title).
-_BARS = (
-    ("success_rate", "success"),
-    ("worst_collision_frequency", "worst collision frequency (99 % CP)"),
-    ("t_reach_s", "t_reach (s)"),
-    ("path_length_m", "path length (m)"),
-    ("min_clearance_m", "min clearance (m)"),
-    ("step_us_median", "step (µs, median)"),
-)
-
-
-def plot_comparison(logs: dict[str, RunLog], rows: Sequence[dict[str, Any]]) -> Any:
-    """Left: each controller's output path (x-y plane) over the obstacles' means and radii
-    at a few times, the start and the target set; right: a bar per row and metric (a
-    missing value, e.g. t_reach never, is left empty)."""
-    from matplotlib.figure import Figure
-    from matplotlib.patches import Circle
-
-    figure = Figure(figsize=(15, 6.5), layout="constrained")
-    left, right = figure.subfigures(1, 2, width_ratios=[1.0, 1.4])
-    axes = left.subplots()
-    reference = next(iter(logs.values()))
-    indices = np.linspace(0, reference.samples - 1, _FIGURE_TIMES).astype(int)
-    for shade, k in enumerate(indices):
-        alpha = 0.15 + 0.6 * shade / max(len(indices) - 1, 1)
-        for j in np.flatnonzero(reference.active[k]):
-            mean = reference.mean[k, j]
-            axes.add_patch(
-                Circle(mean[:2], reference.obstacle_radius[k, j], color="grey", alpha=alpha)
-            )
-        axes.plot(
-            [], [], color="grey", alpha=alpha, lw=6, label=f"obstacles t = {reference.t[k]:.1f} s"
-        )
-    for name, log in logs.items():
-        axes.plot(log.output[:, 0], log.output[:, 1], lw=1.8, label=name)
-    axes.add_patch(
-        Circle(reference.target[:2], reference.target_set_radius, fill=False, ls="--", color="k")
-    )
-    axes.plot(*reference.start[:2], "ko", label="start")
-    axes.set_aspect("equal")
-    axes.set_xlabel("x (m)")
-    axes.set_ylabel("y (m)")
-    axes.set_title(
-        f"{reference.name}: output paths" + (" (x-y)" if reference.dimension == 3 else "")
-    )
-    axes.legend(fontsize="small", loc="best")
-
-    labels = [
-        row["controller"] + (f"\n{row['model_error']}" if row["model_error"] else "")
-        for row in rows
-    ]
-    positions = np.arange(len(rows))
-    for bar_axes, (key, title) in zip(right.subplots(2, 3).ravel(), _BARS, strict=True):
-        values = np.array([np.nan if row[key] is None else row[key] for row in rows], dtype=float)
-        error = None
-        if key == "worst_collision_frequency":
-            lower = np.array([row["clopper_pearson_lower_99"] for row in rows])
-            upper = np.array([row["clopper_pearson_upper_99"] for row in rows])
-            error = np.vstack([values - lower, upper - values])
-        bar_axes.bar(positions, values, yerr=error, capsize=3, color="C0")
-        bar_axes.set_xticks(positions, labels, fontsize="x-small")
-        bar_axes.set_title(title, fontsize="small")
-    return figure

@@ -3,13 +3,13 @@
 Both comparisons (:mod:`stt_drake.compare`, one scenario and a campaign per controller;
 :mod:`stt_drake.compare_draws`, every controller on K randomised draws) use:
 
-* :class:`CompareError`, bad input (exit 2), the message naming the option or field;
-* :func:`check_common`: ``--controllers`` against a perception scenario (the baselines
-  would read another belief than STT), ``--workers``
+* :class:`CompareError`, bad input (exit 2), the message naming the parameter or field;
+* :func:`check_common`: ``controllers`` against a perception scenario (the baselines
+  would read another belief than STT), ``workers``
   (:func:`~stt_drake.campaign.backends.check_workers`);
 * :func:`comparison_folder`: the out folder locked for the whole comparison (the
   campaigns' lock, :func:`stt_drake.campaign.folder.folder_lock`, on ``DIR/.lock``), and a
-  folder that already holds a comparison refused without ``--resume``, at once;
+  folder that already holds a comparison refused without ``resume``, at once;
 * :func:`check_resumed_loop`: a resumed campaign must sample against the closed loop it
   started with (:func:`same_closed_loop`).
 """
@@ -35,13 +35,14 @@ COMPARISON_FILE, DRAWS_FILE = "comparison.json", "draws.jsonl"
 
 
 class CompareError(ValueError):
-    """Bad input to `compare`; the message names the option."""
+    """Bad input to `compare`; the message names the parameter in backticks (the command
+    line shows its flag, :func:`stt_drake.cli.main.flag_message`) or the scenario's field."""
 
 
 def check_common(schema: Any, controllers: Sequence[str], workers: int | None) -> None:
     """Refuse what both comparisons refuse (:class:`CompareError`): a scenario without
     any obstacle (every row is a true-obstacle check), a baseline on a
-    scenario with a ``perception`` section, and a bad ``--workers``. `schema` is the
+    scenario with a ``perception`` section, and a bad ``workers``. `schema` is the
     parsed scenario (its ``perception`` field is read)."""
     baselines = [c for c in controllers if c in BASELINE_CONTROLLERS]
     if not schema.obstacles and not draws_obstacles(schema):
@@ -63,10 +64,10 @@ def check_common(schema: Any, controllers: Sequence[str], workers: int | None) -
 
 
 def check_out(out_dir: Path) -> None:
-    """Refuse an out folder that cannot be written (:class:`CompareError`, ``--out``)."""
+    """Refuse an out folder that cannot be written (:class:`CompareError`, ``out_dir``)."""
     reason = unwritable_reason(out_dir)
     if reason is not None:
-        raise CompareError(f"--out: {out_dir} {reason}")
+        raise CompareError(f"`out_dir`: {out_dir} {reason}")
 
 
 def _holds_comparison(out_dir: Path, campaign_folders: Iterable[Path]) -> bool:
@@ -92,8 +93,8 @@ def comparison_folder(
         with folder_lock(out_dir, "comparison"):
             if not resume and _holds_comparison(out_dir, campaign_folders):
                 raise CompareError(
-                    f"--out: {out_dir} already holds a comparison; pass --resume to continue "
-                    "it or choose another --out"
+                    f"`out_dir`: {out_dir} already holds a comparison; pass `resume` to continue "
+                    "it or choose another `out_dir`"
                 )
             yield
     except CampaignError as error:
@@ -112,7 +113,7 @@ def same_closed_loop(first: ClosedLoop, second: ClosedLoop) -> bool:
 
 def check_resumed_loop(folder: Path, loop: ClosedLoop, controller: str) -> None:
     """Refuse to resume `controller`'s campaign in `folder` against a closed loop other
-    than the one it sampled against (:class:`CompareError`, ``--resume``)."""
+    than the one it sampled against (:class:`CompareError`, ``resume``)."""
     path = folder / CLOSED_LOOP_FILE
     if not path.exists():
         return
@@ -120,12 +121,12 @@ def check_resumed_loop(folder: Path, loop: ClosedLoop, controller: str) -> None:
         same = same_closed_loop(ClosedLoop.load(path), loop)
     except (OSError, ValueError, KeyError, TypeError) as error:
         raise CompareError(
-            f"--resume: {path} is unreadable ({error}), so {controller}'s campaign cannot be "
-            "checked to sample the same closed loop; choose another --out"
+            f"`resume`: {path} is unreadable ({error}), so {controller}'s campaign cannot be "
+            "checked to sample the same closed loop; choose another `out_dir`"
         ) from None
     if not same:
         raise CompareError(
-            f"--resume: {controller}'s closed loop, simulated again, differs from the one its "
+            f"`resume`: {controller}'s closed loop, simulated again, differs from the one its "
             f"campaign in {folder} sampled against (another scenario or code version); "
-            "choose another --out"
+            "choose another `out_dir`"
         )

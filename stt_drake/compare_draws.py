@@ -129,8 +129,8 @@ def draw_record(
 ) -> dict[str, Any]:
     """Simulate `controller` on draw `draw` (scenario seed `seed`); the record of the
     module docstring."""
-    from stt_drake.build import prepare_scenario
-    from stt_drake.build.guide import stall_rule
+    from stt_drake.assembly import prepare_scenario
+    from stt_drake.assembly.guide import stall_rule
     from stt_drake.campaign import ClosedLoop
     from stt_drake.config import AssumptionError, GuideConfig
     from stt_drake.core.progress import find_stalls
@@ -328,15 +328,15 @@ def compare_draws(
     unknown = [c for c in controllers if c not in DRAW_CONTROLLERS]
     if not controllers or unknown or len(set(controllers)) != len(controllers):
         raise CompareError(
-            f"--controllers: each once, and each one of {', '.join(DRAW_CONTROLLERS)} (got "
+            f"`controllers`: each once, and each one of {', '.join(DRAW_CONTROLLERS)} (got "
             f"{', '.join(controllers) or 'none'})"
         )
     if not 1 <= draws <= MAX_DRAWS:
-        raise CompareError(f"--draws: must be ≥ 1 and ≤ {MAX_DRAWS:,} (got {draws})")
+        raise CompareError(f"`draws`: must be ≥ 1 and ≤ {MAX_DRAWS:,} (got {draws})")
     if seed < 0:
-        raise CompareError(f"--seed: must be ≥ 0 (got {seed})")
+        raise CompareError(f"`seed`: must be ≥ 0 (got {seed})")
     try:
-        check_comfort_distance(comfort_distance, "--comfort-distance")
+        check_comfort_distance(comfort_distance, "`comfort_distance`")
     except RuleError as error:
         raise CompareError(str(error)) from None
     try:
@@ -344,10 +344,10 @@ def compare_draws(
         source = ScenarioText(text, path.stem, str(path.resolve().parent))
         schema = source.parse()
     except ScenarioError as error:
-        raise CompareError(f"SCENARIO: bad scenario {path}: {error}") from None
+        raise CompareError(f"`scenario_path`: bad scenario {path}: {error}") from None
     if not draws_obstacles(schema):
         raise CompareError(
-            "--draws: the scenario needs a random_obstacles section (count > 0 or a "
+            "`draws`: the scenario needs a random_obstacles section (count > 0 or a "
             "count_range) or a crowd section to draw from"
         )
     check_common(schema, controllers, workers)
@@ -379,7 +379,7 @@ def compare_draws(
         except BrokenProcessPool:
             raise CampaignStoppedError(
                 "a worker process died (killed, out of memory or a crash in native code); "
-                f"the finished draws are kept in {out_dir / DRAWS_FILE}: resume with --resume"
+                f"the finished draws are kept in {out_dir / DRAWS_FILE}: resume with `resume`"
             ) from None
         finally:
             backend.close()

@@ -2,7 +2,7 @@
 
 :func:`simulate_live` starts a Meshcat server bound to 127.0.0.1 (no network beyond the
 loopback unless another host is asked for), builds the scenario with its live view
-(:func:`stt_drake.build.diagram.add_live_view`: the
+(:func:`stt_drake.assembly.diagram.add_live_view`: the
 :class:`~stt_drake.systems.visualizer.TubeVisualizer` for the tube, the obstacles and their
 ε / p_d level sets, Drake's ``MeshcatVisualizer`` for the FR3 arm), and simulates while
 Meshcat records (``StartRecording``). After the run, ``StopRecording`` /

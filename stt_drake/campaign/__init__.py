@@ -28,14 +28,18 @@ Run i uses the seed :func:`run_seed` (campaign seed, i); ``stt-drake run SCENARI
 replays a randomisation run alone. The statistics are in :mod:`stt_drake.core.statistics`; the
 command is :mod:`stt_drake.cli.campaign`.
 
-Modules: :mod:`~stt_drake.campaign.spec` (:class:`CampaignSpec`, :class:`CampaignError`,
+Modules: :mod:`~stt_drake.campaign.kinds` (the kinds as objects: what a kind needs, one
+file), :mod:`~stt_drake.campaign.spec` (:class:`CampaignSpec`, :class:`CampaignError`,
 :class:`CampaignStoppedError`), :mod:`~stt_drake.campaign.sampling` (seeds, true-obstacle
-draws), :mod:`~stt_drake.campaign.randomisation` (a randomisation run),
+draws, the closed loop they are drawn against), :mod:`~stt_drake.campaign.randomisation`
+(a randomisation run), :mod:`~stt_drake.campaign.end_to_end` (an end-to-end run),
 :mod:`~stt_drake.campaign.backends` (local pool / Dask, :func:`execute`),
 :mod:`~stt_drake.campaign.folder` (the lock, ``campaign_spec.json``, reading
 ``runs.jsonl``), :mod:`~stt_drake.campaign.executor` (:func:`run_campaign`, resume),
-:mod:`~stt_drake.campaign.report` (summaries, ``campaign.json``, figures, the printed table;
-the package attribute ``report`` is the function :func:`report`, re-exported below).
+:mod:`~stt_drake.campaign.summaries` (the per-kind summaries and printed lines),
+:mod:`~stt_drake.campaign.report` (``campaign.json``, the figure, the printed report; the
+package attribute ``report`` is the function :func:`report`, re-exported below); the
+figures are :mod:`stt_drake.plotting.campaign`.
 """
 
 from stt_drake.campaign.executor import CLOSED_LOOP_FILE, run_campaign

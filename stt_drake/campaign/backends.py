@@ -50,17 +50,17 @@ def default_workers() -> int:
 
 
 def check_workers(workers: int | None) -> None:
-    """Refuse a ``--workers`` below 1 or above :data:`MAX_WORKERS_PER_CORE` × the cores.
+    """Refuse `workers` below 1 or above :data:`MAX_WORKERS_PER_CORE` × the cores.
 
     Raises:
-        CampaignError: naming ``--workers`` and the bound.
+        CampaignError: naming ``workers`` and the bound.
     """
     if workers is None:
         return
     most = MAX_WORKERS_PER_CORE * default_workers()
     if not 1 <= workers <= most:
         raise CampaignError(
-            f"--workers: must be in [1, {most}] ({MAX_WORKERS_PER_CORE} per core of the "
+            f"`workers`: must be in [1, {most}] ({MAX_WORKERS_PER_CORE} per core of the "
             f"{default_workers()} this process may use) (got {workers})"
         )
 
@@ -69,12 +69,12 @@ def check_scheduler_address(address: str) -> None:
     """Refuse an address whose scheme no Dask client speaks, before connecting.
 
     Raises:
-        CampaignError: naming ``--scheduler``, the scheme and the known ones.
+        CampaignError: naming ``scheduler``, the scheme and the known ones.
     """
     scheme = address.split("://", 1)[0] if "://" in address else "tcp"
     if scheme not in DASK_SCHEMES:
         raise CampaignError(
-            f"--scheduler: unknown scheme {scheme!r} in {address!r} (known: "
+            f"`scheduler`: unknown scheme {scheme!r} in {address!r} (known: "
             f"{', '.join(DASK_SCHEMES)}; e.g. tcp://host:8786)"
         )
 
@@ -139,8 +139,8 @@ class DaskCluster:
             from distributed import Client
         except ImportError as error:
             raise CampaignError(
-                f"--scheduler needs Dask, which is not installed ({error}); install the "
-                "cluster extra: pip install 'stt-drake[cluster]' (or run without --scheduler "
+                f"`scheduler` needs Dask, which is not installed ({error}); install the "
+                "cluster extra: pip install 'stt-drake[cluster]' (or run without `scheduler` "
                 "on local processes)"
             ) from None
 
@@ -149,18 +149,18 @@ class DaskCluster:
             self.client = Client(address, timeout=f"{timeout}s")
         except (OSError, TimeoutError) as error:
             raise CampaignError(
-                f"--scheduler: no Dask scheduler answered at {address} within {timeout:g} s "
-                f"(--dask-timeout): {error}"
+                f"`scheduler`: no Dask scheduler answered at {address} within {timeout:g} s "
+                f"(`dask_timeout`): {error}"
             ) from None
         except (ValueError, TypeError) as error:  # a malformed address, a TLS setup missing
-            raise CampaignError(f"--scheduler: {address!r}: {error}") from None
+            raise CampaignError(f"`scheduler`: {address!r}: {error}") from None
         try:
             self.client.wait_for_workers(1, timeout=timeout)
         except (OSError, TimeoutError):
             self.client.close()
             raise CampaignStoppedError(
                 f"no Dask worker joined the scheduler {address} within {timeout:g} s "
-                f"(--dask-timeout); start one with: dask worker {address} --nthreads 1"
+                f"(`dask_timeout`); start one with: dask worker {address} --nthreads 1"
             ) from None
         self.slots = max(self._threads(), 1)
         self.executor: cf.Executor = self.client.get_executor(pure=False)
@@ -190,7 +190,7 @@ class DaskCluster:
             self._no_worker_since = now
         elif now - self._no_worker_since > self.timeout:
             raise CampaignStoppedError(
-                f"no Dask worker at {self.address} for {self.timeout:g} s (--dask-timeout): "
+                f"no Dask worker at {self.address} for {self.timeout:g} s (`dask_timeout`): "
                 "the last one left and none joined"
             )
 

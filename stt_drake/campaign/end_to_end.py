@@ -3,7 +3,7 @@ simulated per run, collisions counted against the TRUE obstacles.
 
 Run i loads the scenario with its own seed (:func:`stt_drake.campaign.sampling.run_seed`),
 which draws the obstacles' process noise, the sensor's noise and dropouts (and the plant's
-seeded disturbance) afresh (:func:`stt_drake.build.diagram.add_perception`); the scenario
+seeded disturbance) afresh (:func:`stt_drake.assembly.diagram.add_perception`); the scenario
 must have a `perception:` section. At every logged time k the run records:
 
 * a collision of the output with obstacle j when ‖y(t_k) − O_j^true(t_k)‖ < r_o_j, and of
@@ -98,7 +98,7 @@ def end_to_end_run(
     updates that changed a track) and the crowd keys (comfort distance `comfort_distance`
     m, :mod:`stt_drake.campaign.crowd_metrics`).
     """
-    from stt_drake.build import prepare_scenario
+    from stt_drake.assembly import prepare_scenario
     from stt_drake.run import simulate
 
     record: dict[str, Any] = {"run": index, "seed": seed}
@@ -125,12 +125,12 @@ def end_to_end_run(
         "inside": inside,
         "tracked": tracked,
         "samples": int(log.samples),
-        "holds": bool(result.metrics["holds"]),
-        "reached": bool(result.metrics["reached"]),
+        "holds": bool(result.metrics.holds),
+        "reached": bool(result.metrics.reached),
         "success": bool(result.success),
-        "stop_reason": result.metrics["stop_reason"],
-        "stalls": result.metrics["stalls"],
-        "belief_updates": len(result.metrics["belief_discontinuities"]),
+        "stop_reason": result.metrics.stop_reason,
+        "stalls": result.metrics.stalls,
+        "belief_updates": len(result.metrics.belief_discontinuities),
         **crowd_record(log, comfort_distance),
     }
 

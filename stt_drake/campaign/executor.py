@@ -21,7 +21,6 @@ whatever goes wrong.
 from __future__ import annotations
 
 import hashlib
-import json
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -38,12 +37,6 @@ from stt_drake.campaign.backends import (
     execute,
     open_backend,
 )
-from stt_drake.campaign.end_to_end import (
-    end_to_end_failed,
-    end_to_end_task,
-    is_end_to_end_record,
-    logged_times,
-)
 from stt_drake.campaign.folder import (
     RUNS_FILE,
     SPEC_FILE,
@@ -54,31 +47,17 @@ from stt_drake.campaign.folder import (
     scan_runs,
     tampered_lines,
 )
-from stt_drake.campaign.randomisation import (
-    FAILURES_DIR,
-    draw_failed,
-    failing_draw_yaml,
-    failure_name,
-    is_randomisation_record,
-    randomisation_task,
-)
+from stt_drake.campaign.kinds import CAMPAIGN_KINDS, CampaignInput, CampaignKind, validate_spec
 from stt_drake.campaign.report import write_summary
-from stt_drake.campaign.sampling import (
-    ClosedLoop,
-    is_true_obstacle_record,
-    output_collided,
-    run_seed,
-    sample_true_obstacles,
-)
+from stt_drake.campaign.sampling import CLOSED_LOOP_FILE, ClosedLoop, run_seed
+from stt_drake.campaign.spec import CampaignError, CampaignSpec, CampaignStoppedError
+from stt_drake.runlog import unwritable_reason
 
 if TYPE_CHECKING:
     from stt_drake.config import ScenarioText
-from stt_drake.campaign.spec import CampaignError, CampaignSpec, CampaignStoppedError
-from stt_drake.runlog import unwritable_reason, write_json
 
 __all__ = ["CLOSED_LOOP_FILE", "RUNS_FILE", "SPEC_FILE", "CampaignOutcome", "run_campaign"]
 
-CLOSED_LOOP_FILE = "closed_loop.npz"
 #: A local pool broken this many times in a row without a run finishing stops the campaign.
 MAX_POOL_RESTARTS = 3
 
@@ -98,36 +77,23 @@ class CampaignOutcome:
 
 
 def _load_checked_scenario(spec: CampaignSpec, source: ScenarioText) -> Any:
-    """The scenario as the campaign sees it (kind 1: the file's seed; kind 2: run 0's draw,
-    only to reject bad input up front, None when that draw is rejected). The YAML is parsed
-    once; a randomisation campaign must have a random field (checked on the parsed file,
-    before anything is drawn)."""
-    from stt_drake.build import prepare_scenario
+    """The scenario as the campaign sees it (the file's seed; a kind that redraws: run 0's
+    draw, only to reject bad input up front, None when that draw is rejected). The YAML is
+    parsed once; what the kind needs of the scenario (a random field, a perception section,
+    obstacles: :meth:`~stt_drake.campaign.kinds.CampaignKind.scenario_problem`) is checked
+    on the parsed file, before anything is drawn."""
+    from stt_drake.assembly import prepare_scenario
     from stt_drake.config import AssumptionError, ScenarioError, draws_obstacles
 
-    randomising = spec.kind == "randomisation"
+    kind = CAMPAIGN_KINDS[spec.kind]
     try:
         schema = source.parse(spec.guide)
-        if randomising and not draws_obstacles(schema):
-            raise CampaignError(
-                "scenario.random_obstacles: a randomisation campaign needs a random_obstacles "
-                "section with count > 0 or a count_range, or a crowd section"
-            )
-        if spec.kind == "end-to-end" and schema.perception is None:
-            raise CampaignError(
-                "scenario.perception: an end-to-end campaign needs a perception section "
-                "(true obstacles, sensor, tracker; see diagrams/omni_tracked.yaml)"
-            )
-        if spec.kind == "true-obstacles" and not schema.obstacles and not draws_obstacles(
-            schema
-        ):
-            raise CampaignError(
-                "scenario.obstacles: a true-obstacle campaign draws the true centres of the "
-                "obstacles; the scenario has none (nothing to check)"
-            )
-        return prepare_scenario(schema, run_seed(spec.seed, 0) if randomising else None)
+        problem = kind.scenario_problem(schema, draws_obstacles(schema))
+        if problem is not None:
+            raise CampaignError(problem)
+        return prepare_scenario(schema, run_seed(spec.seed, 0) if kind.redraws else None)
     except ScenarioError as error:
-        if randomising and isinstance(error, AssumptionError):
+        if kind.redraws and isinstance(error, AssumptionError):
             return None
         raise CampaignError(f"bad scenario {spec.scenario}: {error}") from None
 
@@ -166,17 +132,17 @@ def run_campaign(
             address; the folder locked by another campaign), found before any work.
         CampaignStoppedError: the campaign could not finish; the runs recorded are kept.
     """
-    spec.validate()
+    validate_spec(spec)
     if chunk_size is not None and chunk_size < 1:
-        raise CampaignError(f"--chunk-size: must be ≥ 1 (got {chunk_size})")
+        raise CampaignError(f"`chunk_size`: must be ≥ 1 (got {chunk_size})")
     check_workers(workers)
     if not 0.0 < dask_timeout < float("inf"):
-        raise CampaignError(f"--dask-timeout: must be a finite time > 0 s (got {dask_timeout})")
+        raise CampaignError(f"`dask_timeout`: must be a finite time > 0 s (got {dask_timeout})")
     if scheduler is not None:
         check_scheduler_address(scheduler)
     reason = unwritable_reason(out_dir)
     if reason is not None:
-        raise CampaignError(f"--out: {out_dir} {reason}")
+        raise CampaignError(f"`out_dir`: {out_dir} {reason}")
     path = Path(spec.scenario)
     from stt_drake.config import ScenarioText
 
@@ -184,7 +150,7 @@ def run_campaign(
     scenario_text = ScenarioText(text, path.stem, str(path.resolve().parent))
     scenario = _load_checked_scenario(spec, scenario_text)
     text_hash = hashlib.sha256(text.encode()).hexdigest()
-    simulating = spec.kind in ("randomisation", "end-to-end")
+    simulating = CAMPAIGN_KINDS[spec.kind].simulates_runs
     preload = ["stt_drake.campaign", *(["stt_drake.run"] if simulating else [])]
     backend = open_backend(workers, scheduler, preload, dask_timeout)
     try:
@@ -213,36 +179,18 @@ def _run_locked(
     reuse it), read the runs done, run the rest, summarise."""
     scenario_text, scenario = source
     start = time.perf_counter()
-    closed_loop_summary: dict[str, Any] | None = None
-    randomising = spec.kind == "randomisation"
-    if spec.kind == "end-to-end":
-        steps, count = logged_times(scenario), len(scenario.obstacles)
-        task, task_args = end_to_end_task, (scenario_text, steps, spec.guide, spec.comfort_distance)
-        size, failed, label = chunk_size or 1, end_to_end_failed, "collided"
-
-        def shaped(record: Record) -> bool:
-            return is_end_to_end_record(record, count, steps)
-    elif not randomising:
-        closed_loop, closed_loop_summary = _closed_loop(scenario, out_dir, closed_loop, resume)
-        task: Callable[..., list[Record]] = sample_true_obstacles
-        task_args: tuple[Any, ...] = (closed_loop, spec.motion, spec.tau)
-        size, failed, label = chunk_size or 250, output_collided, "collided"
-        count, steps = closed_loop.count, len(closed_loop.t)
-
-        def shaped(record: Record) -> bool:
-            return is_true_obstacle_record(record, count, steps)
-    else:
-        task, task_args = randomisation_task, (scenario_text, spec.guide, spec.comfort_distance)
-        size, failed, label = chunk_size or 1, draw_failed, "failures"
-        shaped = is_randomisation_record
-        (out_dir / FAILURES_DIR).mkdir(exist_ok=True)
+    kind: CampaignKind = CAMPAIGN_KINDS[spec.kind]
+    given = CampaignInput(spec, scenario, scenario_text, out_dir, closed_loop, resume)
+    prepared = kind.prepare(given)
+    size, label = chunk_size or kind.chunk_size, kind.failure_label
 
     from tqdm import tqdm
 
     runs_path = out_dir / RUNS_FILE
     if resume:
         found = scan_runs(
-            runs_path, lambda r: r["seed"] == run_seed(spec.seed, r["run"]) and shaped(r)
+            runs_path,
+            lambda r: r["seed"] == run_seed(spec.seed, r["run"]) and prepared.shaped(r),
         )
         records, malformed = found.records, found.malformed
         if found.tampered:
@@ -267,7 +215,7 @@ def _run_locked(
         disable=not progress,
         dynamic_ncols=True,
     )
-    failures = sum(failed(r) for r in done)
+    failures = sum(kind.failed(r) for r in done)
     bar.set_postfix({label: failures})
 
     with runs_path.open("a") as stream:
@@ -275,15 +223,9 @@ def _run_locked(
         def on_records(batch: list[Record]) -> None:
             nonlocal failures
             for record in batch:
-                if failed(record):
+                if kind.failed(record):
                     failures += 1
-                    if randomising:  # written before its record: a record
-                        # in runs.jsonl always has its YAML, even after a kill
-                        (out_dir / failure_name(record["run"])).write_text(
-                            failing_draw_yaml(
-                                scenario_text, record["seed"], spec.seed, record["run"], spec.guide
-                            )
-                        )
+                    kind.keep_failure(record, spec, scenario_text, out_dir)  # before its record
                 stream.write(record_line(record) + "\n")
                 records[record["run"]] = record
             stream.flush()
@@ -291,7 +233,7 @@ def _run_locked(
             bar.set_postfix({label: failures})
 
         def run(batches: Iterator[list[tuple[int, int]]]) -> None:
-            execute(backend, task, task_args, batches, on_records)
+            execute(backend, prepared.task, prepared.task_args, batches, on_records)
 
         try:
             _run_pending(backend, spec, records, size, run)
@@ -299,18 +241,8 @@ def _run_locked(
             bar.close()
 
     finished = [records[i] for i in range(spec.runs)]
-    summary = write_summary(
-        spec,
-        scenario.name if scenario is not None else scenario_text.name,
-        finished,
-        out_dir,
-        start,
-        closed_loop,
-        closed_loop_summary,
-        figures,
-        malformed,
-        scenario if spec.kind == "end-to-end" else None,
-    )
+    name = scenario.name if scenario is not None else scenario_text.name
+    summary = write_summary(spec, name, finished, out_dir, start, prepared, figures, malformed)
     return CampaignOutcome(summary, out_dir, finished)
 
 
@@ -349,38 +281,3 @@ def _run_pending(
                 file=sys.stderr,
             )
             backend.restart()
-
-
-def _closed_loop(
-    scenario: Any, out_dir: Path, given: ClosedLoop | None, resume: bool
-) -> tuple[ClosedLoop, dict[str, Any]]:
-    """Simulate the scenario once, or take the given closed loop, or (resuming) the saved
-    one — so a resumed campaign samples against exactly the trajectory it started with."""
-    path = out_dir / CLOSED_LOOP_FILE
-    summary_path = out_dir / "closed_loop.json"
-    if resume and given is None and path.exists() and summary_path.exists():
-        try:
-            return ClosedLoop.load(path), json.loads(summary_path.read_text())
-        except (OSError, ValueError, KeyError) as error:  # re-simulated below
-            print(
-                f"stt-drake campaign: {path} or {summary_path} unreadable ({error}); "
-                "simulating the closed loop again",
-                file=sys.stderr,
-            )
-    if given is None:
-        from stt_drake.run import simulate
-
-        result = simulate(scenario)
-        given = ClosedLoop.from_log(result.log)
-        summary = {
-            "simulations": 1,
-            "holds": result.metrics["holds"],
-            "reached": result.metrics["reached"],
-            "t_reach": result.metrics["t_reach"],
-            "wall_time_s": result.metrics["wall_time_s"],
-        }
-    else:
-        summary = {"simulations": 0, "given": True}
-    given.save(path)
-    write_json(summary_path, summary)
-    return given, summary

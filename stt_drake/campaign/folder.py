@@ -63,8 +63,8 @@ def folder_lock(out_dir: Path, what: str = "campaign") -> Iterator[None]:
         except BlockingIOError:
             holder = path.read_text(errors="replace").strip() or "a process that is starting"
             raise CampaignError(
-                f"--out: {out_dir} is in use by another {what} ({holder}); wait for it "
-                "to end or choose another --out"
+                f"`out_dir`: {out_dir} is in use by another {what} ({holder}); wait for it "
+                "to end or choose another `out_dir`"
             ) from None
         command = shlex.join([Path(sys.argv[0]).name, *sys.argv[1:]])
         started = time.strftime("%Y-%m-%d %H:%M:%S")
@@ -83,8 +83,8 @@ def check_resumable(out_dir: Path, spec: CampaignSpec, text_hash: str, resume: b
     if spec_path.exists() and (out_dir / RUNS_FILE).exists():
         if not resume:
             raise CampaignError(
-                f"--out: {out_dir} already holds a campaign; pass --resume to continue it "
-                "or choose another --out"
+                f"`out_dir`: {out_dir} already holds a campaign; pass `resume` to continue it "
+                "or choose another `out_dir`"
             )
         check_same_spec(spec_path, wanted, "campaign", ("runs", "scenario"), SPEC_DEFAULTS)
     write_json(spec_path, wanted)
@@ -105,8 +105,8 @@ def check_same_spec(
         stored = json.loads(path.read_text())
     except (ValueError, OSError) as error:
         raise CampaignError(
-            f"--resume: {path} is unreadable ({error}), so this cannot be checked "
-            f"to be the same {what}; choose another --out"
+            f"`resume`: {path} is unreadable ({error}), so this cannot be checked "
+            f"to be the same {what}; choose another `out_dir`"
         ) from None
     if not isinstance(stored, dict):
         stored = {}
@@ -114,7 +114,7 @@ def check_same_spec(
     for key, value in wanted.items():
         if key not in free and stored.get(key, defaults.get(key)) != value:
             raise CampaignError(
-                f"--resume: {key} differs from the {what} in {path.parent} "
+                f"`resume`: {key} differs from the {what} in {path.parent} "
                 f"({stored.get(key)!r} there, {value!r} now)"
             )
 

@@ -34,7 +34,7 @@ def randomisation_run(
     against the draw's true obstacles, :data:`stt_drake.campaign.crowd_metrics.CROWD_KEYS`, with
     comfort distance `comfort_distance` m).
     """
-    from stt_drake.build import prepare_scenario
+    from stt_drake.assembly import prepare_scenario
     from stt_drake.config import AssumptionError
     from stt_drake.run import simulate
 
@@ -52,13 +52,13 @@ def randomisation_run(
         **record,
         "status": "simulated",
         "obstacles": len(scenario.obstacles),
-        "reached": metrics["reached"],
-        "t_reach": metrics["t_reach"],
-        "holds": metrics["holds"],
+        "reached": metrics.reached,
+        "t_reach": metrics.t_reach,
+        "holds": metrics.holds,
         "success": result.success,
-        "stop_reason": metrics["stop_reason"],
-        "stalls": metrics["stalls"],
-        "invariants": metrics["invariants"],
+        "stop_reason": metrics.stop_reason,
+        "stalls": metrics.stalls,
+        "invariants": metrics.invariants,
         **crowd_record(result.log, comfort_distance),
     }
 

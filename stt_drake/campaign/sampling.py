@@ -8,6 +8,8 @@ against one logged :class:`ClosedLoop` (:func:`sample_true_obstacles`).
 
 from __future__ import annotations
 
+import json
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -15,11 +17,13 @@ from typing import Any
 
 import numpy as np
 
-from stt_drake.runlog import RunLog
+from stt_drake.runlog import RunLog, write_json
 
 MOTIONS = ("static", "ou")
 #: The two collision checks of a true-obstacle campaign.
 CHECKS = ("output", "tube")
+#: Where a true-obstacle campaign keeps the closed loop it samples against.
+CLOSED_LOOP_FILE = "closed_loop.npz"
 
 
 def run_seed(campaign_seed: int, index: int) -> int:
@@ -230,3 +234,41 @@ def is_true_obstacle_record(record: dict[str, Any], count: int, steps: int) -> b
 def output_collided(record: dict[str, Any]) -> bool:
     """Whether a true-obstacle run's output hit any obstacle."""
     return any(record["output"])
+
+
+def closed_loop_of(
+    scenario: Any, out_dir: Path, given: ClosedLoop | None, resume: bool
+) -> tuple[ClosedLoop, dict[str, Any]]:
+    """The closed loop a true-obstacle campaign samples against, kept in `out_dir` as
+    :data:`CLOSED_LOOP_FILE` with its summary (``closed_loop.json``): the scenario simulated
+    once, or the `given` closed loop, or (resuming) the saved one — so a resumed campaign
+    samples against exactly the trajectory it started with. Returns (the closed loop, the
+    summary campaign.json keeps as ``closed_loop``)."""
+    path = out_dir / CLOSED_LOOP_FILE
+    summary_path = out_dir / "closed_loop.json"
+    if resume and given is None and path.exists() and summary_path.exists():
+        try:
+            return ClosedLoop.load(path), json.loads(summary_path.read_text())
+        except (OSError, ValueError, KeyError) as error:  # re-simulated below
+            print(
+                f"stt-drake campaign: {path} or {summary_path} unreadable ({error}); "
+                "simulating the closed loop again",
+                file=sys.stderr,
+            )
+    if given is None:
+        from stt_drake.run import simulate
+
+        result = simulate(scenario)
+        given = ClosedLoop.from_log(result.log)
+        summary = {
+            "simulations": 1,
+            "holds": result.metrics.holds,
+            "reached": result.metrics.reached,
+            "t_reach": result.metrics.t_reach,
+            "wall_time_s": result.metrics.wall_time_s,
+        }
+    else:
+        summary = {"simulations": 0, "given": True}
+    given.save(path)
+    write_json(summary_path, summary)
+    return given, summary

@@ -13,21 +13,24 @@ from pathlib import Path
 
 from stt_drake.campaign.backends import DASK_TIMEOUT_S
 from stt_drake.campaign.executor import RUNS_FILE, run_campaign
+from stt_drake.campaign.kinds import CROWD_KINDS, KINDS, SAMPLING_KINDS, sampling_only
 from stt_drake.campaign.report import SUMMARY_FILE, report
 from stt_drake.campaign.sampling import MOTIONS
 from stt_drake.campaign.spec import (
-    CROWD_KINDS,
     DEFAULT_MOTION,
     DEFAULT_TAU,
-    KINDS,
     MAX_RUNS,
-    SAMPLING_KINDS,
     CampaignError,
     CampaignSpec,
     CampaignStoppedError,
-    sampling_only,
 )
-from stt_drake.cli.main import BadInputError, CommandError, resolve_scenario, results_folder
+from stt_drake.cli.main import (
+    BadInputError,
+    CommandError,
+    flag_message,
+    resolve_scenario,
+    results_folder,
+)
 from stt_drake.core.crowd_metrics import DEFAULT_COMFORT_DISTANCE
 
 
@@ -56,13 +59,15 @@ def resume_command(
 def _motion(args: argparse.Namespace) -> tuple[str, float]:
     """The true-obstacle motion and OU time constant asked for, refused (naming the
     option) when given to a campaign they do not apply to."""
-    given = {"--true-obstacle-motion": args.true_obstacle_motion, "--ou-tau": args.ou_tau}
+    given = {"motion": args.true_obstacle_motion, "tau": args.ou_tau}
     motion = args.true_obstacle_motion or DEFAULT_MOTION
-    for option, value in given.items():
+    for parameter, value in given.items():
         if value is not None and args.kind not in SAMPLING_KINDS:
-            raise BadInputError(f"stt-drake campaign: {sampling_only(option, args.kind)}")
+            why = flag_message(sampling_only(parameter, args.kind))
+            raise BadInputError(f"stt-drake campaign: {why}")
     if args.ou_tau is not None and motion != "ou":
-        raise BadInputError(f"stt-drake campaign: {sampling_only('--ou-tau', args.kind, motion)}")
+        why = flag_message(sampling_only("tau", args.kind, motion))
+        raise BadInputError(f"stt-drake campaign: {why}")
     return motion, DEFAULT_TAU if args.ou_tau is None else args.ou_tau
 
 
@@ -102,9 +107,9 @@ def _campaign(args: argparse.Namespace) -> bool:
             dask_timeout=args.dask_timeout,
         )
     except CampaignError as error:
-        raise BadInputError(f"stt-drake campaign: {error}") from error
+        raise BadInputError(f"stt-drake campaign: {flag_message(error)}") from error
     except (CampaignStoppedError, KeyboardInterrupt) as error:
-        why = "interrupted" if isinstance(error, KeyboardInterrupt) else str(error)
+        why = "interrupted" if isinstance(error, KeyboardInterrupt) else flag_message(error)
         message = f"stt-drake campaign: stopped: {why}"
         if (out_dir / RUNS_FILE).exists():
             command = resume_command(spec, out_dir, args.workers, args.scheduler)

@@ -13,7 +13,7 @@ import contextlib
 from collections.abc import Iterator
 from pathlib import Path
 
-from stt_drake.cli.main import BadInputError, CommandError, resolve_scenario
+from stt_drake.cli.main import BadInputError, CommandError, flag_message, resolve_scenario
 
 
 @contextlib.contextmanager
@@ -26,9 +26,9 @@ def _exit_codes(args: argparse.Namespace) -> Iterator[None]:
     try:
         yield
     except CompareError as error:
-        raise BadInputError(f"stt-drake compare: {error}") from None
+        raise BadInputError(f"stt-drake compare: {flag_message(error)}") from None
     except (CampaignStoppedError, KeyboardInterrupt) as error:
-        why = "interrupted" if isinstance(error, KeyboardInterrupt) else str(error)
+        why = "interrupted" if isinstance(error, KeyboardInterrupt) else flag_message(error)
         raise CommandError(f"stt-drake compare: stopped: {why}{_resume_hint(args)}") from None
 
 

@@ -44,7 +44,7 @@ def write_diagram_pictures(dot_text: str, out_dir: Path, formats: tuple[str, ...
 
 
 def _diagram(args: argparse.Namespace) -> bool:
-    from stt_drake.build.diagram import build_diagram
+    from stt_drake.assembly.diagram import build_diagram
 
     if args.depth < 0:
         raise BadInputError(

@@ -15,6 +15,7 @@ import contextlib
 import difflib
 import importlib
 import os
+import re
 import sys
 from collections.abc import Sequence
 from importlib.resources import files
@@ -30,6 +31,30 @@ DEFAULT_SCENARIO = "omni_hardware_case1"
 SCENARIO_PACKAGE = "stt_drake.diagrams"
 
 EXIT_SUCCESS, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
+
+#: The one table from a library parameter to the command-line argument that sets it: the
+#: library's errors name their parameters in backticks (```runs```), the command's
+#: messages the flag (:func:`flag_message`).
+PARAMETER_FLAGS = {
+    "chunk_size": "--chunk-size",
+    "comfort_distance": "--comfort-distance",
+    "controllers": "--controllers",
+    "dask_timeout": "--dask-timeout",
+    "draws": "--draws",
+    "kind": "--kind",
+    "model_error": "--model-error",
+    "motion": "--true-obstacle-motion",
+    "out_dir": "--out",
+    "resume": "--resume",
+    "runs": "--runs",
+    "scenario_path": "SCENARIO",
+    "scheduler": "--scheduler",
+    "seed": "--seed",
+    "solver": "--solver",
+    "tau": "--ou-tau",
+    "workers": "--workers",
+}
+_PARAMETER = re.compile(r"`(" + "|".join(PARAMETER_FLAGS) + r")`")
 
 #: Modules that add a subcommand (each defines ``add_parser(commands)``), in help order.
 SUBCOMMAND_MODULES: tuple[str, ...] = (
@@ -54,6 +79,12 @@ class BadInputError(CommandError):
     """The command line, or a file it names, is invalid (exit code 2)."""
 
     exit_code = EXIT_BAD_INPUT
+
+
+def flag_message(message: object) -> str:
+    """A library error's message as the command says it: each parameter named in
+    backticks (:data:`PARAMETER_FLAGS`) replaced by its flag."""
+    return _PARAMETER.sub(lambda match: PARAMETER_FLAGS[match.group(1)], str(message))
 
 
 def packaged_scenarios() -> dict[str, Path]:
@@ -124,7 +155,7 @@ def load_scenario_arguments(
             name cannot name a folder inside results/, or the output folder cannot be
             written.
     """
-    from stt_drake.build import load_scenario
+    from stt_drake.assembly import load_scenario
     from stt_drake.config import ScenarioError
 
     args.scenario = resolve_scenario(args.scenario)

@@ -1,4 +1,5 @@
-"""Matplotlib figures from a run log (pure numpy/matplotlib; no Drake).
+"""Matplotlib figures from a run log, a campaign, a comparison and the benchmark (pure
+numpy/matplotlib; no Drake).
 
 A *run log* is any mapping with the members of ``log.npz`` (a dict, ``np.load("log.npz")``
 or a :class:`stt_drake.runlog.RunLog`); its layout is documented once, in
@@ -13,7 +14,11 @@ The figures live in submodules — :mod:`~stt_drake.plotting.run2d`,
 :mod:`~stt_drake.plotting.run3d`, :mod:`~stt_drake.plotting.margins`,
 :mod:`~stt_drake.plotting.arm`, with the shared palette, σ colours and obstacle level
 sets in :mod:`~stt_drake.plotting.style` and :func:`save_run_figures` in
-:mod:`~stt_drake.plotting.save` — and are re-exported here.
+:mod:`~stt_drake.plotting.save` — and are re-exported here. The figures of the
+commands above a run are drawn here too, from plain data (their callers sit above plotting
+in the import layers): :mod:`~stt_drake.plotting.campaign` (one per campaign kind),
+:mod:`~stt_drake.plotting.compare` (``comparison.png``) and
+:mod:`~stt_drake.plotting.bench` (the tube step's scaling).
 """
 
 from __future__ import annotations

@@ -34,9 +34,9 @@ def bench_guide_plans(plans: int = 60) -> dict[str, Any]:
     """Per dimension: ``median`` and ``p99`` of one replan (ms, wall clock, after a warm-up
     plan that loads the compiled search), its ``expansions`` median and the field's
     obstacle ``count``."""
-    from stt_drake.build import prepare_scenario
-    from stt_drake.build.guide import guide_settings
-    from stt_drake.build.laws import make_tube_law
+    from stt_drake.assembly import prepare_scenario
+    from stt_drake.assembly.guide import guide_settings
+    from stt_drake.assembly.laws import make_tube_law
     from stt_drake.config import GuideConfig, parse_schema
     from stt_drake.core.belief import ObstacleTask
     from stt_drake.core.guide import RoutePlanner, ScriptedForecast
@@ -78,7 +78,7 @@ def bench_guided_loop(pairs: int = 1, duration: float | None = None) -> dict[str
     :data:`GUIDED_SEEDS` (simulated for at most `duration` seconds), `pairs` interleaved
     pairs per draw: per draw the median ratio guided / unguided; over the draws the median
     (``ratio``) and the smallest (``worst_ratio``, its draw ``worst_seed``)."""
-    from stt_drake.build import prepare_scenario
+    from stt_drake.assembly import prepare_scenario
     from stt_drake.config import parse_schema
     from stt_drake.run import simulate
 
@@ -95,7 +95,7 @@ def bench_guided_loop(pairs: int = 1, duration: float | None = None) -> dict[str
                     schema.guide = None
                 if duration is not None:
                     schema.duration = min(schema.duration, duration)
-                pair[mode] = simulate(prepare_scenario(schema, seed)).metrics["realtime_factor"]
+                pair[mode] = simulate(prepare_scenario(schema, seed)).metrics.realtime_factor
                 factors[mode].append(pair[mode])
             pair_ratios.append(pair["guided"] / pair["unguided"])
         ratios[seed] = statistics.median(pair_ratios)
