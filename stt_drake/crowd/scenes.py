@@ -196,6 +196,27 @@ def _exit_depth(area: Sequence[float]) -> float:
     return min(0.5, 0.1 * min(area[2] - area[0], area[3] - area[1]))
 
 
+def _frame(
+    pedestrians: int,
+    seed: int,
+    speed_range: Sequence[float],
+    area: Sequence[float],
+    radius: float,
+) -> tuple[tuple[float, float, float, float], float, float, np.random.Generator]:
+    """What every scene starts from, after :func:`check_scene_arguments`: the area
+    (x0, y0, x1, y1) as floats (m), the exit strips' depth (m), the start regions' margin
+    (radius + :data:`START_GAP`, m) and the scene's random generator (from `seed`)."""
+    check_scene_arguments(pedestrians, seed, speed_range, area, radius)
+    x0, y0, x1, y1 = (float(v) for v in area)
+    return (x0, y0, x1, y1), _exit_depth(area), radius + START_GAP, np.random.default_rng(seed)
+
+
+def _halves(pedestrians: int) -> tuple[int, int]:
+    """The two flows' counts: the first has the odd pedestrian."""
+    first = math.ceil(pedestrians / 2)
+    return first, pedestrians - first
+
+
 def crossing(
     pedestrians: int,
     seed: int,
@@ -204,12 +225,9 @@ def crossing(
     radius: float = DEFAULT_RADIUS,
 ) -> CrowdSetup:
     """Two flows at right angles (module docstring)."""
-    check_scene_arguments(pedestrians, seed, speed_range, area, radius)
-    x0, y0, x1, y1 = (float(v) for v in area)
-    w, h, depth, margin = x1 - x0, y1 - y0, _exit_depth(area), radius + START_GAP
-    rng = np.random.default_rng(seed)
-    first = math.ceil(pedestrians / 2)
-    counts = (first, pedestrians - first)
+    (x0, y0, x1, y1), depth, margin, rng = _frame(pedestrians, seed, speed_range, area, radius)
+    w, h = x1 - x0, y1 - y0
+    counts = _halves(pedestrians)
     regions = (
         _shrunk(x0, y0 + h / 4, x0 + w / 4, y1 - h / 4, margin),
         _shrunk(x0 + w / 4, y0, x1 - w / 4, y0 + h / 4, margin),
@@ -235,8 +253,7 @@ def circle(
 ) -> CrowdSetup:
     """Pedestrians evenly spaced on a circle, each walking to its antipode (module
     docstring)."""
-    check_scene_arguments(pedestrians, seed, speed_range, area, radius)
-    x0, y0, x1, y1 = (float(v) for v in area)
+    (x0, y0, x1, y1), _, _, rng = _frame(pedestrians, seed, speed_range, area, radius)
     centre = np.array([(x0 + x1) / 2.0, (y0 + y1) / 2.0])
     ring = 0.5 * min(x1 - x0, y1 - y0) - 2.0 * radius - START_GAP
     spacing = 2.0 * radius + START_GAP
@@ -248,7 +265,6 @@ def circle(
             f"{fit}; lower the count or the radius, or enlarge the area)",
             pedestrians,
         )
-    rng = np.random.default_rng(seed)
     angles = rng.uniform(0.0, 2.0 * np.pi) + 2.0 * np.pi * np.arange(pedestrians) / pedestrians
     unit = np.column_stack([np.cos(angles), np.sin(angles)])
     starts = centre + ring * unit
@@ -267,10 +283,8 @@ def corridor(
     radius: float = DEFAULT_RADIUS,
 ) -> CrowdSetup:
     """One flow along the corridor, left to right (module docstring)."""
-    check_scene_arguments(pedestrians, seed, speed_range, area, radius)
-    x0, y0, x1, y1 = (float(v) for v in area)
-    w, depth, margin = x1 - x0, _exit_depth(area), radius + START_GAP
-    rng = np.random.default_rng(seed)
+    (x0, y0, x1, y1), depth, margin, rng = _frame(pedestrians, seed, speed_range, area, radius)
+    w = x1 - x0
     starts = _place(rng, (_shrunk(x0, y0, x0 + w / 3, y1, margin),), (pedestrians,), radius)
     return CrowdSetup(
         "corridor", (x0, y0, x1, y1), starts, _speeds(rng, pedestrians, speed_range),
@@ -286,12 +300,9 @@ def bidirectional(
     radius: float = DEFAULT_RADIUS,
 ) -> CrowdSetup:
     """Two opposite flows in a corridor (module docstring)."""
-    check_scene_arguments(pedestrians, seed, speed_range, area, radius)
-    x0, y0, x1, y1 = (float(v) for v in area)
-    w, depth, margin = x1 - x0, _exit_depth(area), radius + START_GAP
-    rng = np.random.default_rng(seed)
-    first = math.ceil(pedestrians / 2)
-    counts = (first, pedestrians - first)
+    (x0, y0, x1, y1), depth, margin, rng = _frame(pedestrians, seed, speed_range, area, radius)
+    w = x1 - x0
+    counts = _halves(pedestrians)
     regions = (
         _shrunk(x0, y0, x0 + w / 3, y1, margin),
         _shrunk(x1 - w / 3, y0, x1, y1, margin),
