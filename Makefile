@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-fast lint install lock clean system-packages
+.PHONY: demo test test-fast bench-history bench-compare lint install lock clean system-packages
 
 # pyproject.toml gives compatible ranges; requirements.lock pins the exact versions installed
 # here and in CI (.ci/run calls `make test`), so both stay reproducible.
@@ -52,6 +52,17 @@ test-fast: $(STAMP)
 	$(PYTEST) -m "not slow and not notebook and not browser" --durations=10
 
 # Graphviz (`stt-drake diagram`) and headless Chromium (the replay test) are Debian packages.
+# The benchmark history (pytest-benchmark; benchmarks/): every run is saved in .benchmarks/
+# and compared with the previous saved run (rows listed, nothing fails).
+bench-history: $(STAMP)
+	$(BIN)/python -m pytest benchmarks -p no:xdist --benchmark-autosave --benchmark-compare \
+	  --benchmark-columns=min,median,rounds
+
+# The working tree against main on this machine (quiet): names every row whose median is more
+# than 10 % slower (exit 1).
+bench-compare: $(STAMP)
+	$(BIN)/python benchmarks/compare_with_main.py main
+
 system-packages:
 	@if ! command -v dot >/dev/null 2>&1 || ! command -v chromium >/dev/null 2>&1; then \
 	  echo "installing Debian packages graphviz and chromium for the diagram and replay tests"; \
@@ -60,4 +71,4 @@ system-packages:
 	fi
 
 clean:
-	rm -rf $(VENV) results .pytest_cache .ruff_cache .hypothesis
+	rm -rf $(VENV) results .pytest_cache .ruff_cache .hypothesis .benchmarks
