@@ -1,19 +1,15 @@
 """The benchmark history's closed-loop rows: a packaged scenario's Diagram simulated for
 :data:`DURATION` seconds with the invariant monitor on (every guarantee checked at every
-step); one round is one whole simulation from a fresh Diagram (built outside the timing),
-five rounds per row. A row's time divided into its simulated seconds is the inverse of
+step), loaded and built as `stt-drake bench` does (:mod:`stt_drake.bench.loops`). One
+round is one whole simulation from a fresh Diagram (built outside the timing), five rounds
+per row. A row's time divided into its simulated seconds is the inverse of
 the real-time factor `stt-drake run` prints."""
 
 from __future__ import annotations
 
 import pytest
 
-from stt_drake.assembly import load_scenario
-from stt_drake.assembly.diagram import build_diagram
-from stt_drake.assembly.feasibility import validate_real_time
-from stt_drake.bench.loops import DIAGRAMS
-from stt_drake.core.invariants import InvariantTracker
-from stt_drake.run import make_simulator
+from stt_drake.bench.loops import closed_loop_scenario, ready_simulator
 
 #: Simulated seconds per round (the scenarios are cut there).
 DURATION = 5.0
@@ -34,18 +30,12 @@ LOOPS = [
     ("name", "rate_hz"), LOOPS, ids=[f"{n}-{'file' if r is None else f'{r:g}hz'}" for n, r in LOOPS]
 )
 def test_closed_loop(benchmark, name, rate_hz):
-    scenario = load_scenario(DIAGRAMS / f"{name}.yaml")
-    scenario.duration = min(scenario.duration, DURATION)
-    if rate_hz is not None:
-        scenario.tube.update_rate_hz = rate_hz
-        validate_real_time(scenario)
-    trackers: list[InvariantTracker] = []
+    scenario = closed_loop_scenario(name, DURATION, rate_hz)
+    trackers = []
 
     def fresh_simulator() -> tuple[tuple, dict]:
-        tracker = InvariantTracker()
+        simulator, tracker = ready_simulator(scenario)
         trackers.append(tracker)
-        simulator = make_simulator(build_diagram(scenario), scenario, tracker)
-        simulator.Initialize()
         return (simulator,), {}
 
     benchmark.pedantic(

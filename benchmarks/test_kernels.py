@@ -1,20 +1,18 @@
 """The benchmark history's kernel rows (pytest-benchmark; `make bench-history`,
 `make bench-compare`): one call each of the tube step through the public law (50
 obstacles, typical and worst fields, 2D and 3D; full covariances), the controller and the
-tracker update. The workloads are `stt-drake bench`'s (:mod:`stt_drake.bench.workloads`),
-so a row here and its line in `stt-drake bench` time the same call."""
+tracker update. The workloads are `stt-drake bench`'s (:mod:`stt_drake.bench.workloads`,
+:mod:`stt_drake.bench.kernels`), so a row here and its line in `stt-drake bench` time the
+same call."""
 
 from __future__ import annotations
-
-import dataclasses
 
 import numpy as np
 import pytest
 
+from stt_drake.bench.kernels import controller_cases, tracker_workload
 from stt_drake.bench.workloads import anisotropic_field, obstacle_field
-from stt_drake.core.consistency import Adaptation
-from stt_drake.core.control import BoxFunnel, FunnelController
-from stt_drake.core.tracking import KalmanTracker, birth, monitored_update, update
+from stt_drake.core.tracking import monitored_update, update
 
 #: Obstacles of the kernel rows (the issue's "50-obstacle field").
 COUNT = 50
@@ -35,37 +33,24 @@ def test_tube_step_full_covariance(benchmark, dimension):
     assert np.isfinite(evaluation.radius) and evaluation.radius > 0.0
 
 
-def test_controller_one_stage(benchmark):
-    controller = FunnelController(kappa=[6.0])
-    evaluation = benchmark(controller.evaluate, 1.5, np.array([0.12, -0.05]), np.zeros(2), 0.5)
-    assert np.all(np.isfinite(evaluation.control))
-
-
-def test_controller_two_stages(benchmark):
-    funnel = BoxFunnel(np.full(3, 2.0), np.full(3, 1.0), np.full(3, 1.0))
-    controller = FunnelController(kappa=[3.0, 4.0], funnels=[funnel])
-    states = np.array([0.1, -0.2, 0.15, 0.3, -0.1, 0.2])
-    evaluation = benchmark(controller.evaluate, 1.5, states, np.zeros(3), 0.5)
+@pytest.mark.parametrize("case", ["stage1", "stage2"])
+def test_controller(benchmark, case):
+    controller, states, center = controller_cases()[case]
+    evaluation = benchmark(controller.evaluate, 1.5, states, center, 0.5)
     assert np.all(np.isfinite(evaluation.control))
 
 
 @pytest.mark.parametrize("dimension", [2, 3])
 def test_tracker_update(benchmark, dimension):
-    noise = 0.0025 * np.eye(dimension)
-    z = np.random.default_rng(0).normal(size=(COUNT, dimension))
-    state, covariance = birth(z, noise, 0.2)
-    mean, _ = benchmark(update, state, covariance, 0.1, z, 1e-3, noise)
+    work = tracker_workload(dimension, COUNT)
+    mean, _ = benchmark(update, work.state, work.covariance, 0.1, work.z, 1e-3, work.noise)
     assert np.all(np.isfinite(mean))
 
 
 @pytest.mark.parametrize("dimension", [2, 3])
 def test_monitored_tracker_update(benchmark, dimension):
-    noise = 0.0025 * np.eye(dimension)
-    z = np.random.default_rng(0).normal(size=(COUNT, dimension))
-    state, covariance = birth(z, noise, 0.2)
-    tracker = KalmanTracker(dimension, 1e-3, noise, 0.2, 1.0, adaptation=Adaptation(dimension))
-    table = dataclasses.replace(tracker.empty(COUNT), state=state, covariance=covariance)
+    work = tracker_workload(dimension, COUNT)
     every = np.ones(COUNT, dtype=bool)
-    table = dataclasses.replace(table, detection_time=np.zeros(COUNT), active=every)
-    updated = benchmark(monitored_update, table, every, 0.1, z, 1e-3, noise, tracker.adaptation)
+    arguments = (work.table, every, 0.1, work.z, 1e-3, work.noise, work.monitored.adaptation)
+    updated = benchmark(monitored_update, *arguments)
     assert np.all(np.isfinite(updated[0]))  # the posterior means

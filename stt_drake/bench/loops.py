@@ -11,7 +11,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from pydrake.systems.analysis import Simulator
+
     from stt_drake.config import Scenario
+    from stt_drake.core.invariants import InvariantTracker
 
 #: Closed loops (scenario files under diagrams/).
 SCENARIOS = ("omni_cluttered_50", "uav_cluttered")
@@ -21,7 +24,7 @@ FIXED_RATE_HZ = 100.0
 DIAGRAMS = Path(str(files("stt_drake.diagrams")))
 
 
-def _closed_loop_scenario(
+def closed_loop_scenario(
     name: str, duration: float | None, update_rate_hz: float | None
 ) -> Scenario | None:
     """diagrams/<name>.yaml loaded, cut to `duration`, with `update_rate_hz` replacing its
@@ -43,17 +46,23 @@ def _closed_loop_scenario(
     return scenario
 
 
-def _time_closed_loop(scenario: Scenario) -> dict[str, Any]:
-    """One simulation of `scenario` with the invariant monitor on (every guarantee, every
-    step), timed by wall clock and process CPU time."""
+def ready_simulator(scenario: Scenario) -> tuple[Simulator, InvariantTracker]:
+    """A Simulator of a freshly built Diagram of `scenario`, initialised, with the invariant
+    monitor on (every guarantee, every step) folding into the returned tracker."""
     from stt_drake.assembly.diagram import build_diagram
     from stt_drake.core.invariants import InvariantTracker
     from stt_drake.run import make_simulator
 
-    built = build_diagram(scenario)
     tracker = InvariantTracker()
-    simulator = make_simulator(built, scenario, tracker)
+    simulator = make_simulator(build_diagram(scenario), scenario, tracker)
     simulator.Initialize()
+    return simulator, tracker
+
+
+def _time_closed_loop(scenario: Scenario) -> dict[str, Any]:
+    """One simulation of `scenario` (:func:`ready_simulator`), timed by wall clock and
+    process CPU time."""
+    simulator, tracker = ready_simulator(scenario)
     wall, cpu = time.perf_counter(), time.process_time()
     simulator.AdvanceTo(scenario.duration)
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
@@ -99,7 +108,7 @@ def bench_closed_loop(
 
     Returns ``{"available": False, ...}`` when the scenario file does not exist.
     """
-    scenario = _closed_loop_scenario(name, duration, update_rate_hz)
+    scenario = closed_loop_scenario(name, duration, update_rate_hz)
     if scenario is None:
         return {"available": False, "reason": f"{name}.yaml not found"}
     return _closed_loop_summary(scenario, [_time_closed_loop(scenario) for _ in range(repeats)])
@@ -118,8 +127,8 @@ def bench_fixed_rate_against_continuous(
         fixed-rate / continuous of the real-time factor: `median`, `min`, `max` over the
         pairs and `cpu_median` (of the CPU-time factors).
     """
-    continuous = _closed_loop_scenario(name, duration, 0.0)
-    fixed = _closed_loop_scenario(name, duration, FIXED_RATE_HZ)
+    continuous = closed_loop_scenario(name, duration, 0.0)
+    fixed = closed_loop_scenario(name, duration, FIXED_RATE_HZ)
     if continuous is None or fixed is None:
         missing = {"available": False, "reason": f"{name}.yaml not found"}
         return missing, missing, {}
