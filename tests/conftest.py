@@ -3,7 +3,11 @@ test session (tests run with `--dist loadfile`, so one worker owns each test fil
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -34,3 +38,19 @@ def run_scenario():
         return cache[name]
 
     return run
+
+
+def printed_json(code: str, env: dict[str, str], cwd: Path, timeout: float) -> Any:
+    """The JSON value printed on the last line by `code`, run in a fresh Python process with
+    environment `env` in folder `cwd`; the process must exit 0 within `timeout` seconds."""
+    completed = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=cwd,
+        timeout=timeout,
+        check=False,
+    )
+    assert completed.returncode == 0, completed.stderr
+    return json.loads(completed.stdout.strip().splitlines()[-1])

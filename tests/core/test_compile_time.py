@@ -4,10 +4,7 @@ simulation's own wall time. No wall-clock speed is asserted."""
 
 from __future__ import annotations
 
-import json
 import os
-import subprocess
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -18,6 +15,7 @@ from stt_drake import run as run_module
 from stt_drake.assembly import load_scenario
 from stt_drake.core import backend
 from stt_drake.run import simulate
+from tests.conftest import printed_json
 
 ROOT = Path(__file__).resolve().parents[2]
 CASE1 = ROOT / "diagrams" / "omni_hardware_case1.yaml"
@@ -84,17 +82,7 @@ print(json.dumps({{name: count for name, count in gained.items() if count}}))
 
 def _printed_json(code: str) -> Any:
     """The JSON object printed last by `code`, run in a fresh Python process."""
-    completed = subprocess.run(
-        [sys.executable, "-c", code],
-        capture_output=True,
-        text=True,
-        env=ENV,
-        cwd=ROOT,
-        timeout=900,
-        check=False,
-    )
-    assert completed.returncode == 0, completed.stderr
-    return json.loads(completed.stdout.strip().splitlines()[-1])
+    return printed_json(code, ENV, ROOT, timeout=900)
 
 
 def _assert_factor_is_sim_over_wall(metrics: dict) -> None:

@@ -8,16 +8,14 @@ the working tree's cache)."""
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from stt_drake.core import backend
+from tests.conftest import printed_json
 
 PACKAGE = Path(backend.__file__).resolve().parents[1]
 
@@ -43,17 +41,7 @@ def _probe(root: Path, cache: Path) -> dict:
     environment.update(
         PYTHONPATH=str(root), NUMBA_CACHE_DIR=str(cache), STT_DRAKE_PURE_NUMPY=""
     )
-    completed = subprocess.run(
-        [sys.executable, "-c", PROBE],
-        capture_output=True,
-        text=True,
-        env=environment,
-        cwd=root,
-        timeout=600,
-        check=False,
-    )
-    assert completed.returncode == 0, completed.stderr
-    return json.loads(completed.stdout.strip().splitlines()[-1])
+    return printed_json(PROBE, environment, root, timeout=600)
 
 
 def _replace(path: Path, old: str, new: str) -> None:
