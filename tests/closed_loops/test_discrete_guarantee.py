@@ -122,6 +122,7 @@ def test_period_bound_monte_carlo():
 def test_inflation_closed_form_and_infinite_spread():
     bounds = BeliefRateBounds(np.array([0.5, 1.0, 0.0]), np.array([0.1, 0.0, 1.0]))
     reach, spread = bounds.inflation(np.array([0.2, 0.3, 0.05]), 0.1)
+    # Δ = v̄τ: one product each, so rtol 1e-15 (≈ 4.5 ulp) is a few roundings, not bitwise.
     np.testing.assert_allclose(reach, [0.05, 0.1, 0.0], rtol=1e-15)
     # γ = σ/(σ − s̄τ) − 1: 0.2/0.19 − 1; 0; and σ − s̄τ < 0 → σ could reach 0: infinite.
     np.testing.assert_allclose(spread[:2], [0.2 / 0.19 - 1.0, 0.0], rtol=1e-14)

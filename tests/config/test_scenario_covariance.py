@@ -202,6 +202,8 @@ def test_a_mixed_field_carries_every_covariance(tmp_path):
         scheduled = float(np.interp(t, [0.0, 4.0], [0.05, 0.15]))
         np.testing.assert_array_equal(belief.covariance[0], 0.1**2 * np.eye(2))
         np.testing.assert_array_equal(belief.covariance[1], full)
+        # rtol 1e-15 ≈ 4.5 ulp, here and for the mean below: a few roundings (interpolate and
+        # square; multiply and add) that another order of the same operations may differ by.
         np.testing.assert_allclose(belief.covariance[2], scheduled**2 * np.eye(2), rtol=1e-15)
         # sigma: σ of the isotropic obstacles, √λ_max of the full one (λ = 0.03 ± √0.0002).
         largest = np.sqrt(0.03 + np.sqrt(0.0002))
