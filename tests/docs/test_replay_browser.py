@@ -3,7 +3,9 @@
 
 from __future__ import annotations
 
+import os
 import shutil
+import signal
 import subprocess
 from pathlib import Path
 
@@ -30,23 +32,42 @@ CHROMIUM_FLAGS = [
 ]
 
 
-def _screenshot(page: Path, tmp_path: Path) -> np.ndarray:
+def _screenshot(page: Path, tmp_path: Path, attempts: int = 3) -> np.ndarray:
+    """Chromium's screenshot of `page`.
+
+    Headless Chromium now and then hangs without exiting (seen once in CI: 180 s with no
+    screenshot, on a page that renders in ~5 s here). Each attempt runs in its own process
+    group with a 60 s limit; a hung attempt is killed with all its children and retried."""
     chromium = shutil.which("chromium")
     assert chromium, "chromium is not installed (.ci/run installs the Debian package)"
     shot = tmp_path / f"{page.stem}.png"
-    subprocess.run(
-        [
+    failures = []
+    for attempt in range(attempts):
+        shot.unlink(missing_ok=True)
+        command = [
             chromium,
             *CHROMIUM_FLAGS,
-            f"--user-data-dir={tmp_path / 'profile'}",
+            f"--user-data-dir={tmp_path / f'profile-{page.stem}-{attempt}'}",
             f"--screenshot={shot}",
             page.as_uri(),
-        ],
-        check=True,
-        capture_output=True,
-        timeout=180,
-    )
-    return imread(shot)[:, :, :3]
+        ]
+        process = subprocess.Popen(
+            command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True
+        )
+        try:
+            _, stderr = process.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            os.killpg(process.pid, signal.SIGKILL)
+            _, stderr = process.communicate()
+            failures.append(f"attempt {attempt + 1}: no exit within 60 s")
+            continue
+        if process.returncode == 0 and shot.exists():
+            return imread(shot)[:, :, :3]
+        failures.append(
+            f"attempt {attempt + 1}: exit {process.returncode}, "
+            f"stderr tail: {stderr.decode(errors='replace')[-400:]}"
+        )
+    pytest.fail("chromium took no screenshot:\n" + "\n".join(failures))
 
 
 def _obstacle_red_pixels(image: np.ndarray) -> int:
