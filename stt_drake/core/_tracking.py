@@ -293,3 +293,73 @@ def track_update_monitored(
     else:
         raise ValueError("track_update_monitored is compiled for n = 1, 2, 3 only")
     return x, p, s, r, c, nis, test
+
+
+# The published belief (:meth:`stt_drake.core.tracking.KalmanTracker.belief_vector`).
+
+
+@njit(**_JIT)
+def _predicted_slot(
+    record: np.ndarray, t: float, density: float, out: np.ndarray, n: int
+) -> None:
+    """One slot's belief record [mean (n), covariance (n²), active] at time t (s) from its
+    track record [state (2n), covariance ((2n)²), detection time, active, ...]: the
+    position block of F P Fᵀ + Q(dt), dt = t − detection time
+    (:func:`stt_drake.core.tracking.predicted_position`); mean 0, covariance I inactive."""
+    d = 2 * n
+    base = d + d * d
+    if record[base + 1] <= 0.5:
+        out[:] = 0.0
+        for i in range(n):
+            out[n + i * n + i] = 1.0
+        return
+    dt = t - record[base]
+    for i in range(n):
+        out[i] = record[i] + dt * record[n + i]
+    noise = density * dt**3 / 3.0
+    for i in range(n):
+        for k in range(n):
+            cross = record[d + i * d + n + k] + record[d + k * d + n + i]
+            value = record[d + i * d + k] + dt * cross + dt**2 * record[d + (n + i) * d + n + k]
+            out[n + i * n + k] = value + noise if i == k else value
+    out[n + n * n] = 1.0
+
+
+@njit(**_JIT)
+def track_belief(
+    table: np.ndarray,
+    previous: np.ndarray,
+    t: float,
+    weight: float,
+    density: float,
+    scale_column: int,
+    n: int,
+) -> np.ndarray:
+    """The `obstacle_belief` port vector at time t (s) from the track records `table`
+    (m, record), blended with the belief of `previous` (m, record) by `weight` in [0, 1)
+    (1: no blend; :func:`stt_drake.core.tracking.blend_beliefs`). Each slot predicts with
+    `density` (m²/s³), times its record's column `scale_column` when ≥ 0 (the adaptive
+    noise scale)."""
+    count = table.shape[0]
+    size = n + n * n + 1
+    out = np.empty(count * size)
+    old = np.empty(size)
+    for j in range(count):
+        slot = out[j * size : (j + 1) * size]
+        q = density * table[j, scale_column] if scale_column >= 0 else density
+        _predicted_slot(table[j], t, q, slot, n)
+        if weight >= 1.0 or slot[size - 1] <= 0.5:
+            continue
+        q = density * previous[j, scale_column] if scale_column >= 0 else density
+        _predicted_slot(previous[j], t, q, old, n)
+        if old[size - 1] <= 0.5:
+            continue
+        w = weight
+        for i in range(n):
+            for k in range(n):
+                index = n + i * n + k
+                jump = w * (1.0 - w) * (slot[i] - old[i]) * (slot[k] - old[k])
+                slot[index] = (1.0 - w) * old[index] + w * slot[index] + jump
+        for i in range(n):
+            slot[i] = (1.0 - w) * old[i] + w * slot[i]
+    return out

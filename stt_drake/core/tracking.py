@@ -483,6 +483,35 @@ class KalmanTracker:
         covariance[~active] = np.eye(self.dimension)
         return GaussianBelief(mean=mean, covariance=covariance, active=active.copy())
 
+    def belief_vector(
+        self, tracks: np.ndarray, previous: np.ndarray, t: float, weight: float
+    ) -> np.ndarray:
+        """The `obstacle_belief` port vector at time t (s) from the packed track tables
+        (:meth:`TrackTable.to_vector`): :meth:`belief` of `tracks`, blended from the belief
+        of `previous` by `weight` (:func:`blend_beliefs`; ≥ 1: no blend). One call of the
+        compiled :func:`stt_drake.core._tracking.track_belief` for n ≤ 3 (unless the numpy
+        path is selected), else these numpy functions."""
+        kernel = backend.compiled("track_belief", self.dimension)
+        if kernel is None:
+            belief = self.belief(self.unpack(tracks), t)
+            if weight < 1.0:
+                belief = blend_beliefs(self.belief(self.unpack(previous), t), belief, weight)
+            return belief.to_vector()
+        records = (-1, self.record_size)
+        density, scale_column = self.process_density, -1
+        if self.adaptation is not None:
+            density = self.adaptation.base_density(self.process_density)
+            scale_column = track_record_size(self.dimension)  # the first monitored field
+        return kernel(
+            np.reshape(tracks, records),
+            np.reshape(previous, records),
+            float(t),
+            float(weight),
+            float(density),
+            scale_column,
+            self.dimension,
+        )
+
 
 def blend_beliefs(old: GaussianBelief, new: GaussianBelief, weight: float) -> GaussianBelief:
     """The belief moving from `old` to `new` as `weight` goes from 0 to 1: in each slot

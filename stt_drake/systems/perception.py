@@ -23,11 +23,11 @@ from collections.abc import Sequence
 import numpy as np
 from pydrake.systems.framework import BasicVector, Context, DiscreteValues, LeafSystem
 
-from stt_drake.core.belief import GaussianBelief, belief_size
+from stt_drake.core.belief import belief_size
 from stt_drake.core.consistency import CONSISTENCY_FIELDS
 from stt_drake.core.motion import Motion, MotionTable
 from stt_drake.core.perception import Detections, SensorModel, TruthPath, detection_size
-from stt_drake.core.tracking import KalmanTracker, TrackTable, blend_beliefs, consistency_stats
+from stt_drake.core.tracking import KalmanTracker, TrackTable, consistency_stats
 
 #: Relative slack when counting sensor periods (a latency of 3 periods is 3, not 2.999...).
 _PERIOD_SLACK = 1e-9
@@ -300,16 +300,18 @@ class ObstacleTracker(LeafSystem):
         discrete_state.set_value(self._previous, before)
         discrete_state.set_value(self._update_time, [context.get_time()])
 
-    def belief(self, context: Context) -> GaussianBelief:
-        """The published belief at the context time (blended after an update)."""
+    def belief_vector(self, context: Context) -> np.ndarray:
+        """The published belief at the context time, as the `obstacle_belief` port vector
+        (blended for `blend_time` after an update)."""
         t = context.get_time()
-        belief = self._tracker.belief(self.tracks(context), t)
         elapsed = t - context.get_discrete_state(self._update_time).value()[0]
-        if elapsed >= self._blend_time:
-            return belief
-        previous = self._tracker.unpack(context.get_discrete_state(self._previous).value())
-        old = self._tracker.belief(previous, t)
-        return blend_beliefs(old, belief, elapsed / self._blend_time)
+        weight = elapsed / self._blend_time if elapsed < self._blend_time else 1.0
+        return self._tracker.belief_vector(
+            context.get_discrete_state(self._tracks).value(),
+            context.get_discrete_state(self._previous).value(),
+            t,
+            weight,
+        )
 
     def _calc_belief(self, context: Context, output: BasicVector) -> None:
-        output.SetFromVector(self.belief(context).to_vector())
+        output.SetFromVector(self.belief_vector(context))

@@ -9,6 +9,8 @@ algebra), Van Loan's matrix-exponential discretisation of the continuous-time mo
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -20,10 +22,12 @@ from stt_drake.core.perception import (
     SensorModel,
     draw_truth_deviation,
 )
+from stt_drake.core.consistency import Adaptation
 from stt_drake.core.tracking import (
     KalmanTracker,
     TrackTable,
     birth,
+    blend_beliefs,
     correct,
     predict,
     predicted_position,
@@ -152,6 +156,49 @@ def test_compiled_update_matches_numpy(n):
         slow = update(state, covariance, dt, z, 0.6, noise)
     for got, expected in zip(fast, slow, strict=True):
         np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12)
+
+
+
+def random_tracks(rng: np.random.Generator, law: KalmanTracker, count: int) -> TrackTable:
+    """`count` slots with random posteriors, a third of them inactive; monitored laws get
+    random noise scales."""
+    n = law.dimension
+    a = rng.standard_normal((count, 2 * n, 2 * n))
+    table = law.empty(count)
+    fields = {
+        "state": rng.standard_normal((count, 2 * n)),
+        "covariance": a @ a.transpose(0, 2, 1) + 0.1 * np.eye(2 * n),
+        "detection_time": rng.uniform(0.0, 0.4, count),
+        "active": rng.random(count) > 0.33,
+    }
+    if law.window:
+        fields["scale"] = rng.uniform(1.0, 4.0, count)
+    return dataclasses.replace(table, **fields)
+
+
+@pytest.mark.parametrize("monitored", [False, True])
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_compiled_published_belief_matches_numpy(n, monitored):
+    """The port vector of KalmanTracker.belief_vector (compiled) against belief() and
+    blend_beliefs() in numpy, with and without a blend, on read-only inputs as Drake's
+    discrete state gives them; a few roundings apart at most (rtol 1e-13)."""
+    rng = np.random.default_rng(20 + n)
+    law = KalmanTracker(n, 0.3, np.eye(n) * 0.01, 1.0, 0.5, Adaptation(n) if monitored else None)
+    tracks, previous = random_tracks(rng, law, 13), random_tracks(rng, law, 13)
+    vectors = [table.to_vector() for table in (tracks, previous)]
+    for vector in vectors:
+        vector.flags.writeable = False
+    for weight in (1.0, 0.3):
+        expected = law.belief(tracks, 0.7)
+        if weight < 1.0:
+            expected = blend_beliefs(law.belief(previous, 0.7), expected, weight)
+        with backend.pure_numpy(False):
+            assert backend.compiled("track_belief", n) is not None
+            fast = law.belief_vector(*vectors, 0.7, weight)
+        with backend.pure_numpy():
+            slow = law.belief_vector(*vectors, 0.7, weight)
+        np.testing.assert_array_equal(slow, expected.to_vector())
+        np.testing.assert_allclose(fast, slow, rtol=1e-13, atol=1e-15)
 
 
 def tracker(timeout: float = 0.5) -> KalmanTracker:
