@@ -141,14 +141,52 @@ def _anisotropic_probabilities(
     output: np.ndarray, center: np.ndarray, radius: float, belief: ObstacleBelief, r_min: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(q_j(c) with r_o + r_min, q_j(c) with r_o + r, q_j(y) with r_o) for a belief with
-    full covariances, each Σ_j decomposed once (:mod:`stt_drake.core.anisotropic`; not the
-    tube's kernel, so the monitor does not share the tube's code path)."""
+    full covariances, each Σ_j checked and decomposed once: one call of the compiled
+    :func:`stt_drake.core._invariants.anisotropic_invariants` for n = 2, 3 (unless the
+    numpy path is selected), else :func:`_anisotropic_reference`. Not the tube's kernel, so
+    the monitor does not share the tube's code path.
+
+    Raises:
+        ValueError: a Σ_j breaks a rule of :func:`stt_drake.core.anisotropic.
+            eigen_decomposition` (named with the obstacle's index).
+    """
+    kernel = backend.compiled("anisotropic_invariants", belief.dimension)
+    if kernel is None:
+        return _anisotropic_reference(output, center, radius, belief, r_min)
+    q, valid = kernel(
+        np.asarray(output, dtype=float),
+        np.asarray(center, dtype=float),
+        float(radius),
+        np.ascontiguousarray(belief.mean, dtype=float),
+        np.ascontiguousarray(belief.covariance, dtype=float),
+        np.ascontiguousarray(belief.radius, dtype=float),
+        float(r_min),
+        anisotropic.SYMMETRY_RTOL,
+        anisotropic.MAX_CONDITION,
+    )
+    for j in np.flatnonzero(~valid):
+        try:
+            anisotropic.eigen_decomposition(belief.covariance[j])
+        except ValueError as error:
+            raise ValueError(f"obstacle {j}: {error}") from None
+        raise ValueError(f"obstacle {j}: covariance is not a valid Σ (numerically singular)")
+    return q[:, 0], q[:, 1], q[:, 2]
+
+
+def _anisotropic_reference(
+    output: np.ndarray, center: np.ndarray, radius: float, belief: ObstacleBelief, r_min: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_anisotropic_probabilities` in numpy, obstacle by obstacle
+    (:mod:`stt_drake.core.anisotropic`)."""
     count = belief.count
     center_q, tube_q, output_q = np.empty(count), np.empty(count), np.empty(count)
     center = np.asarray(center, dtype=float)
     output = np.asarray(output, dtype=float)
     for j in range(count):
-        variances, axes = anisotropic.eigen_decomposition(belief.covariance[j])
+        try:
+            variances, axes = anisotropic.eigen_decomposition(belief.covariance[j])
+        except ValueError as error:
+            raise ValueError(f"obstacle {j}: {error}") from None
         at_center = ((center - belief.mean[j]) @ axes)[None, :]
         at_output = ((output - belief.mean[j]) @ axes)[None, :]
         r_o = float(belief.radius[j])

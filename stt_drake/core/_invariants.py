@@ -1,0 +1,80 @@
+"""Compiled (numba) kernel of the invariant monitor's probabilities for beliefs with full
+covariances (:func:`stt_drake.core.invariants.evaluate_invariants`): per obstacle, Σ_j
+checked and decomposed once, then the three avoid probabilities of the guarantees at the
+tube centre and at the output, by the contour integral of :mod:`stt_drake.core._anisotropic`
+(not the tube's kernel: the monitor does not share the tube's code path).
+
+Arrays, for m obstacles in dimension n (2 or 3): ``mean`` (m, n) and ``covariance``
+(m, n, n) of each centre (m, m²), ``obstacle_radius`` (m,) r_o (m).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from stt_drake.core._anisotropic import ball_probabilities
+from stt_drake.core.backend import jit_options
+
+_JIT = jit_options()
+
+
+@njit(**_JIT)
+def _half_sum(matrix: np.ndarray, half: np.ndarray, symmetry_rtol: float) -> bool:
+    """`half` ← (Σ + Σᵀ)/2; whether Σ is finite and symmetric within `symmetry_rtol` ·
+    max|Σ| (the rules of :func:`stt_drake.core.anisotropic.eigen_decomposition`)."""
+    n = matrix.shape[0]
+    size = 0.0
+    for i in range(n):
+        for k in range(n):
+            if not math.isfinite(matrix[i, k]):
+                return False
+            size = max(size, abs(matrix[i, k]))
+    for i in range(n):
+        for k in range(n):
+            if abs(matrix[i, k] - matrix[k, i]) > symmetry_rtol * size:
+                return False
+            half[i, k] = 0.5 * (matrix[i, k] + matrix[k, i])
+    return True
+
+
+@njit(**_JIT)
+def anisotropic_invariants(
+    output: np.ndarray,
+    center: np.ndarray,
+    radius: float,
+    mean: np.ndarray,
+    covariance: np.ndarray,
+    obstacle_radius: np.ndarray,
+    r_min: float,
+    symmetry_rtol: float,
+    max_condition: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(q (m, 3), valid (m,)): per obstacle j the avoid probabilities
+    [q_j(c) with r_o + r_min, q_j(c) with r_o + max(r, 0), q_j(y) with r_o] for a tube of
+    centre `center` and radius `radius` and the output `output`; `valid` is False (and the
+    row NaN) where Σ_j breaks a rule of
+    :func:`stt_drake.core.anisotropic.eigen_decomposition` (finite, symmetric, positive
+    definite, eigenvalue ratio ≤ `max_condition`)."""
+    count = mean.shape[0]
+    q = np.full((count, 3), np.nan)
+    valid = np.zeros(count, dtype=np.bool_)
+    radii = np.empty(3)
+    half = np.empty(covariance.shape[1:])
+    for j in range(count):
+        if not _half_sum(covariance[j], half, symmetry_rtol):
+            continue
+        variances, axes = np.linalg.eigh(half)
+        if not (variances[0] > 0.0 and variances[-1] <= max_condition * variances[0]):
+            continue
+        at_center = (center - mean[j]) @ axes
+        at_output = (output - mean[j]) @ axes
+        radii[0] = obstacle_radius[j] + r_min
+        radii[1] = obstacle_radius[j] + max(radius, 0.0)
+        radii[2] = obstacle_radius[j]
+        for k in range(3):
+            q[j, k] = ball_probabilities(variances, at_output if k == 2 else at_center, radii[k])[1]
+        valid[j] = True
+    return q, valid
