@@ -257,14 +257,43 @@ class ObstacleBelief:
         _check_slot_count(belief.count, task)
         active = np.flatnonzero(belief.active)
         covariance = belief.covariance[active]
-        return cls(
-            mean=belief.mean[active],
-            sigma=largest_sigma(covariance),
-            radius=task.radius[active],
-            epsilon=task.epsilon[active],
-            p_d=task.p_d[active],
-            covariance=covariance if full_covariance else None,
-        )
+        arrays = {
+            "mean": belief.mean[active],
+            "radius": task.radius[active],
+            "epsilon": task.epsilon[active],
+            "p_d": task.p_d[active],
+        }
+        if full_covariance:
+            return CovarianceBelief(**arrays, covariance=covariance)
+        return cls(**arrays, sigma=largest_sigma(covariance))
+
+
+class CovarianceBelief(ObstacleBelief):
+    """An :class:`ObstacleBelief` with full covariances Σ_j whose σ_j = √λ_max(Σ_j) is
+    computed on first read (:meth:`ObstacleBelief.of` with `full_covariance`): the exact law
+    and the monitor read Σ_j only, and an eigen-decomposition per evaluation would cost
+    more than the law's compiled call."""
+
+    def __init__(
+        self,
+        mean: np.ndarray,
+        radius: np.ndarray,
+        epsilon: np.ndarray,
+        p_d: np.ndarray,
+        covariance: np.ndarray,
+        sigma: np.ndarray | None = None,
+    ) -> None:
+        fields = {"mean": mean, "radius": radius, "epsilon": epsilon, "p_d": p_d}
+        fields["covariance"] = covariance
+        if sigma is not None:  # given (dataclasses.replace passes every field)
+            fields["sigma"] = sigma
+        for name, value in fields.items():
+            object.__setattr__(self, name, value)  # frozen, as every ObstacleBelief
+
+    @cached_property
+    def sigma(self) -> np.ndarray:  # type: ignore[override]
+        """σ_j = √λ_max(Σ_j), m (a standard deviation), computed once on first read."""
+        return largest_sigma(self.covariance)
 
 
 def _unpacked(name: str) -> property:
