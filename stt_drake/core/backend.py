@@ -69,6 +69,8 @@ KERNELS: dict[str, tuple[int, ...] | None] = {
     "exact_tube_step": (2, 3),  # tube.TubeLaw.evaluate with covariances
     "track_update": COMPILED_DIMENSIONS,  # tracking.update
     "track_update_monitored": COMPILED_DIMENSIONS,  # tracking.monitored_update
+    "track_belief": COMPILED_DIMENSIONS,  # tracking.KalmanTracker.belief_vector
+    "anisotropic_invariants": (2, 3),  # invariants.evaluate_invariants with covariances
     "route_search": None,  # route_search.search_route (the guide's A*)
 }
 
@@ -91,6 +93,8 @@ KERNEL_MODULES: dict[str, str] = {
     "exact_tube_step": "_tube",
     "track_update": "_tracking",
     "track_update_monitored": "_tracking",
+    "track_belief": "_tracking",
+    "anisotropic_invariants": "_invariants",
     "route_search": "_guide",
 }
 
@@ -98,6 +102,7 @@ _VECTOR = "float64[::1]"
 _MATRIX = "float64[:, ::1]"
 _CUBE = "float64[:, :, ::1]"
 _VIEW = "Array(float64, {}, 'A', readonly=True)"
+_READONLY_MATRIX = "Array(float64, 2, 'C', readonly=True)"
 
 
 def _signature(*arguments: str) -> str:
@@ -200,6 +205,13 @@ SIGNATURES: dict[str, tuple[str, ...]] = {
             *["float64"] * 4,
         ),
     ),
+    # The tracker's discrete state, read-only views of Drake's vectors.
+    "track_belief": (
+        _signature(*[_READONLY_MATRIX] * 2, *["float64"] * 3, "int64", "int64"),
+    ),
+    "anisotropic_invariants": (
+        _signature(_VECTOR, _VECTOR, "float64", _MATRIX, _CUBE, _VECTOR, *["float64"] * 3),
+    ),
     "route_search": (
         _signature(
             _VECTOR,
@@ -235,6 +247,7 @@ CACHED_SOURCES = (
     "_tube",
     "_anisotropic",
     "_anisotropic_tube",
+    "_invariants",
     "_tracking",
     "_guide",
     "route_search",

@@ -17,6 +17,7 @@ from stt_drake.core.belief import (
     record_size,
 )
 from stt_drake.core.motion import MotionTable
+from stt_drake.systems.memo import LastResult
 
 
 class ObstacleBeliefSource(LeafSystem):
@@ -58,6 +59,7 @@ class ObstacleBeliefSource(LeafSystem):
             self._calc_belief,
             prerequisites_of_calc={self.time_ticket()},
         )
+        self._last_belief = LastResult()  # stt_drake.systems.memo
 
     @property
     def obstacle_count(self) -> int:
@@ -104,4 +106,8 @@ class ObstacleBeliefSource(LeafSystem):
         return vector
 
     def _calc_belief(self, context: Context, output: BasicVector) -> None:
-        output.SetFromVector(self.belief_vector(context.get_time()))
+        t = context.get_time()
+        key, vector = self._last_belief.lookup(t)  # a step's first stage repeats the last time
+        if vector is None:
+            vector = self._last_belief.store(key, self.belief_vector(t))
+        output.SetFromVector(vector)

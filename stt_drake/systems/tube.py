@@ -41,6 +41,7 @@ from stt_drake.core.rules import (
     checked_by,
 )
 from stt_drake.core.tube import TubeEvaluation, TubeLaw
+from stt_drake.systems.memo import LastResult
 
 
 class SpatiotemporalTube(LeafSystem):
@@ -137,7 +138,9 @@ class SpatiotemporalTube(LeafSystem):
             self._calc_belief,
             {self.input_port_ticket(self._belief_port.get_index())},
         )
-        # (TubeEvaluation, [c, r] with the law's exact radius)
+        # (TubeEvaluation, [c, r] with the law's exact radius); the last one memoised
+        # (stt_drake.systems.memo: a step's first stage repeats the monitor's evaluation).
+        self._last_evaluation = LastResult()
         self._evaluation = self._declare_cache(
             "tube law evaluation",
             self._calc_evaluation,
@@ -217,9 +220,12 @@ class SpatiotemporalTube(LeafSystem):
     def _calc_evaluation(self, context: Context, value: AbstractValue) -> None:
         law = self.law_in(context)
         center = self.center(context)
-        evaluation = law.evaluate(
-            center, self.belief(context), circulation=self.circulation(context)
-        )
+        belief, circulation = self.belief(context), self.circulation(context)
+        key, result = self._last_evaluation.lookup(center, belief.vector, circulation)
+        if result is not None and result[0] is law:  # the same law at the same inputs
+            value.set_value(result[1])
+            return
+        evaluation = law.evaluate(center, belief, circulation=circulation)
         tube = np.empty(self._dimension + 1)  # the `tube` port value, [c, r]
         tube[:-1] = center
         tube[-1] = evaluation.radius
@@ -230,7 +236,7 @@ class SpatiotemporalTube(LeafSystem):
                 f"ċ = {evaluation.center_rate}, r = {evaluation.radius} (a recovery needs "
                 f"a finite max_center_speed, v_c = {law.max_center_speed})"
             )
-        value.set_value((evaluation, tube))
+        value.set_value(self._last_evaluation.store(key, (law, (evaluation, tube)))[1])
 
     def evaluated(self, context: Context) -> tuple[TubeEvaluation, np.ndarray]:
         """The cached (law evaluation, [c, r] with the law's exact radius) in `context`."""

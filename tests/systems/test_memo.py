@@ -1,0 +1,75 @@
+"""The one-entry memo of the tube evaluation and the scripted belief
+(:mod:`stt_drake.systems.memo`): it returns the law's result for bit-identical inputs
+only, and in a closed loop it saves the evaluation a step's first stage repeats."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from stt_drake.assembly import load_scenario
+from stt_drake.assembly.diagram import build_diagram
+from stt_drake.core.invariants import InvariantTracker
+from stt_drake.core.tube import TubeLaw
+from stt_drake.run import make_simulator
+from stt_drake.systems.memo import LastResult
+from stt_drake.systems.tube import SpatiotemporalTube
+from tests.conftest import DIAGRAMS
+from tests.systems.test_systems import TUBE_BELIEF, make_law, tube_context
+
+
+@pytest.fixture
+def law_calls(monkeypatch):
+    """The number of TubeLaw.evaluate calls so far (a list holding one count)."""
+    calls = [0]
+    evaluate = TubeLaw.evaluate
+
+    def counted(self, *args, **kwargs):
+        calls[0] += 1
+        return evaluate(self, *args, **kwargs)
+
+    monkeypatch.setattr(TubeLaw, "evaluate", counted)
+    return calls
+
+
+def test_last_result_matches_exact_inputs_only():
+    memo = LastResult()
+    key, result = memo.lookup(np.array([1.0, 2.0]), 0.5, None)
+    assert result is None
+    memo.store(key, "stored")
+    assert memo.lookup(np.array([1.0, 2.0]), 0.5, None)[1] == "stored"
+    assert memo.lookup(np.array([1.0, 2.0 + 1e-15]), 0.5, None)[1] is None
+    assert memo.lookup(np.array([1.0, 2.0]), 0.5, np.zeros(1))[1] is None  # None ≠ an array
+
+
+def test_tube_contexts_alternating_get_each_their_own_evaluation(law_calls):
+    """Two contexts of one tube, alternately: every switch is a miss and recomputes, and
+    each context reads the law's own result at its centre."""
+    law = make_law()
+    tube = SpatiotemporalTube(law, np.zeros(2), TUBE_BELIEF.task)
+    centers = (np.array([0.5, 0.0]), np.array([0.6, 0.35]))
+    contexts = [tube_context(tube, center, TUBE_BELIEF) for center in centers]
+    for _ in range(2):
+        for context, center in zip(contexts, centers, strict=True):
+            tube.set_center(context, center)  # the same centre: invalidates the Drake cache
+            rate = tube.EvalTimeDerivatives(context).CopyToVector()
+            np.testing.assert_array_equal(rate, law.evaluate(center, TUBE_BELIEF).center_rate)
+    assert law_calls[0] == 2 * 2 * 2  # each Eval a miss, plus the reference call
+
+
+def test_a_closed_loop_evaluates_the_law_once_per_stage(law_calls):
+    """omni_hardware_case1 for 1 s with the monitor (Runge-Kutta 3): the law runs once per
+    derivative evaluation (plus the initial one); the monitor's evaluation at the end of
+    each step is the next step's first stage, not a second call."""
+    scenario = dataclasses.replace(
+        load_scenario(DIAGRAMS / "omni_hardware_case1.yaml"), duration=1.0
+    )
+    simulator = make_simulator(build_diagram(scenario), scenario, InvariantTracker())
+    simulator.Initialize()
+    simulator.AdvanceTo(scenario.duration)
+    derivatives = simulator.get_integrator().get_num_derivative_evaluations()
+    steps = simulator.get_num_steps_taken()
+    assert steps > 50
+    assert law_calls[0] <= derivatives + 1 < derivatives + steps
