@@ -34,10 +34,11 @@ lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports
 
-# Drake may use the network only for Meshcat (localhost) and to *register* its package map:
-# with "meshcat" alone, constructing any multibody Parser fails offline (checked here), and
-# no test may download anything (a `package://drake_models` model would fail to load).
-PYTEST := DRAKE_ALLOW_NETWORK=meshcat:package_map MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist loadfile
+# Drake may use the network only for Meshcat (localhost), to *register* its package map and
+# for LCM (UDP multicast, which the two-process robot test needs on the loopback): with
+# "meshcat" alone, constructing any multibody Parser fails offline (checked here), and no
+# test may download anything (a `package://drake_models` model would fail to load).
+PYTEST := DRAKE_ALLOW_NETWORK=meshcat:package_map:lcm MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist loadfile
 
 # Every test; the 25 slowest are listed at the end (CI keeps them in its log).
 test: $(STAMP) system-packages

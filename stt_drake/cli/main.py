@@ -65,6 +65,7 @@ SUBCOMMAND_MODULES: tuple[str, ...] = (
     "stt_drake.cli.bench",
     "stt_drake.cli.crowd",
     "stt_drake.cli.list",
+    "stt_drake.cli.robot",
 )
 
 

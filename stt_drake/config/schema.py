@@ -12,6 +12,7 @@ from typing import Union
 import numpy as np
 from pydrake.systems.analysis import SimulatorConfig
 
+from stt_drake.config.lcm import LcmConfig
 from stt_drake.core.belief import ObstacleBelief, obstacle_belief
 from stt_drake.core.consistency import Adaptation, density_bounds
 from stt_drake.core.motion import ConstantVelocity, CovarianceSchedule, Motion, SigmaSchedule
@@ -441,6 +442,7 @@ class Scenario:
     perception: Perception | None = None
     guide: GuideConfig | None = None
     crowd: CrowdConfig | None = None
+    lcm: LcmConfig | None = None  # the LCM bus of `stt-drake station`/`controller`
 
     @property
     def dimension(self) -> int:

@@ -17,12 +17,12 @@ from scipy import stats
 from scipy.linalg import block_diag, expm
 
 from stt_drake.core import backend
+from stt_drake.core.consistency import Adaptation
 from stt_drake.core.perception import (
     Detections,
     SensorModel,
     draw_truth_deviation,
 )
-from stt_drake.core.consistency import Adaptation
 from stt_drake.core.tracking import (
     KalmanTracker,
     TrackTable,
