@@ -15,6 +15,7 @@ import contextlib
 import difflib
 import importlib
 import os
+import platform
 import re
 import sys
 from collections.abc import Sequence
@@ -200,10 +201,33 @@ def check_out_folder(folder: Path, option: str = "--out") -> None:
         raise BadInputError(f"stt-drake: {option}: {folder} {reason}")
 
 
+def version_line() -> str:
+    """``stt-drake X (drake Y, numba Z, Python W)``: the installed versions, read from the
+    package metadata (what `--version` prints)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    def installed(name: str) -> str:
+        try:
+            return version(name)
+        except PackageNotFoundError:
+            return "not installed"
+
+    return (
+        f"stt-drake {installed('stt-drake')} (drake {installed('drake')}, numba "
+        f"{installed('numba')}, Python {platform.python_version()})"
+    )
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="stt-drake",
         description="Spatiotemporal Tube control among uncertain moving obstacles (Drake).",
+    )
+    parser.add_argument(
+        "--version",
+        action="version",
+        version=version_line(),
+        help="print stt-drake's version and those of Drake, numba and Python, and exit",
     )
     commands = parser.add_subparsers(dest="command", required=True)
     for module in SUBCOMMAND_MODULES:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import platform
 import shutil
 import subprocess
 import sys
@@ -174,3 +175,14 @@ def test_violated_guarantee_exits_1_and_strict_mode_stops_at_it(tmp_path, capsys
     assert strict["sim_time_s"] < lax["sim_time_s"]
     t_first = strict["invariants"]["output_in_tube"]["t_worst"]
     assert strict["sim_time_s"] == pytest.approx(t_first, abs=0.05)
+
+
+def test_version_names_the_package_drake_numba_and_python(capsys):
+    from importlib.metadata import version
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--version"])
+    assert exit_info.value.code == 0
+    line = capsys.readouterr().out.strip()
+    assert line.startswith(f"stt-drake {version('stt-drake')} (drake {version('drake')}, ")
+    assert f"numba {version('numba')}" in line and f"Python {platform.python_version()}" in line
