@@ -27,6 +27,7 @@ from stt_drake.campaign.spec import (
 from stt_drake.cli.main import (
     BadInputError,
     CommandError,
+    announce_compilation,
     flag_message,
     resolve_scenario,
     results_folder,
@@ -94,6 +95,7 @@ def _campaign(args: argparse.Namespace) -> bool:
     if out_dir is None:
         stem = Path(args.scenario).stem
         out_dir = results_folder(stem, "the scenario file's name") / f"campaign_{args.kind}"
+    announce_compilation()
     try:
         outcome = run_campaign(
             spec,

@@ -13,7 +13,13 @@ import contextlib
 from collections.abc import Iterator
 from pathlib import Path
 
-from stt_drake.cli.main import BadInputError, CommandError, flag_message, resolve_scenario
+from stt_drake.cli.main import (
+    BadInputError,
+    CommandError,
+    announce_compilation,
+    flag_message,
+    resolve_scenario,
+)
 
 
 @contextlib.contextmanager
@@ -47,6 +53,7 @@ def _compare(args: argparse.Namespace) -> bool:
             "the campaigns of a comparison over --runs use seed 0)"
         )
     with _exit_codes(args):
+        announce_compilation()
         document = compare(
             scenario,
             args.controllers,
@@ -85,6 +92,7 @@ def _compare_draws(args: argparse.Namespace, scenario: Path) -> bool:
             "per controller; --draws: K randomised draws per controller)"
         )
     with _exit_codes(args):
+        announce_compilation()
         document = compare_draws(
             scenario,
             args.controllers,

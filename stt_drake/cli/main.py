@@ -201,6 +201,19 @@ def check_out_folder(folder: Path, option: str = "--out") -> None:
         raise BadInputError(f"stt-drake: {option}: {folder} {reason}")
 
 
+def announce_compilation() -> None:
+    """Say so on stderr before a command compiles the kernels (an empty numba cache: the
+    first run after installing or changing a compiled source), which takes a while."""
+    from stt_drake.core.backend import kernels_cached
+
+    if not kernels_cached():
+        print(
+            "stt-drake: compiling the numba kernels (first run only, 20-90 s)...",
+            file=sys.stderr,
+            flush=True,
+        )
+
+
 def version_line() -> str:
     """``stt-drake X (drake Y, numba Z, Python W)``: the installed versions, read from the
     package metadata (what `--version` prints)."""

@@ -13,6 +13,7 @@ from stt_drake.cli.main import (
     DEFAULT_SCENARIO,
     BadInputError,
     add_scenario_arguments,
+    announce_compilation,
     load_scenario_arguments,
 )
 
@@ -40,6 +41,7 @@ def _run(args: argparse.Namespace) -> bool:
     if args.no_guide:
         scenario.guide = None
     strict = True if args.strict else None
+    announce_compilation()
     if args.meshcat:  # drawn live in Meshcat while it runs; the recording is replay.html
         from stt_drake.replay import LOCALHOST, MeshcatHostError, simulate_live, start_meshcat
 

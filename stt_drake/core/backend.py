@@ -362,6 +362,17 @@ def jit_options() -> dict[str, Any]:
     return dict(JIT_OPTIONS)
 
 
+def kernels_cached() -> bool:
+    """Whether numba's cache folder for this code (:func:`jit_options`) holds compiled
+    kernels already; False: the first run compiles them (tens of seconds), or the numpy
+    path is selected (True: nothing to compile)."""
+    if _state["pure_numpy"]:
+        return True
+    jit_options()
+    folder: Path = _state["cache"]  # type: ignore[assignment]
+    return folder.is_dir() and any(folder.rglob("*.nbi"))
+
+
 def warm_up(dimension: int) -> float:
     """Compile, or load from numba's on-disk cache, every kernel of :data:`KERNELS` that
     covers output dimension `dimension`, for the argument types of :data:`SIGNATURES`

@@ -186,3 +186,23 @@ def test_version_names_the_package_drake_numba_and_python(capsys):
     line = capsys.readouterr().out.strip()
     assert line.startswith(f"stt-drake {version('stt-drake')} (drake {version('drake')}, ")
     assert f"numba {version('numba')}" in line and f"Python {platform.python_version()}" in line
+
+
+def test_a_command_says_when_it_compiles_the_kernels(tmp_path):
+    """With numba's cache folder empty (NUMBA_CACHE_DIR pointing at a new folder) the CLI
+    says it is compiling before it starts; with the kernels cached it says nothing."""
+    code = "from stt_drake.cli.main import announce_compilation; announce_compilation()"
+
+    def stderr_of(env: dict[str, str]) -> str:
+        completed = subprocess.run(
+            [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120
+        )
+        assert completed.returncode == 0, completed.stderr
+        return completed.stderr
+
+    fresh = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+    assert "compiling the numba kernels (first run only" in stderr_of(fresh)
+    from stt_drake.core.backend import warm_up
+
+    warm_up(2)  # this process's kernels, in its cache folder (the same environment's)
+    assert stderr_of(dict(os.environ)) == ""
