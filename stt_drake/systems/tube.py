@@ -218,13 +218,14 @@ class SpatiotemporalTube(LeafSystem):
         value.set_value(self._law.with_target(self._target_port.Eval(context)))
 
     def _calc_evaluation(self, context: Context, value: AbstractValue) -> None:
-        law = self.law_in(context)
         center = self.center(context)
         belief, circulation = self.belief(context), self.circulation(context)
-        key, result = self._last_evaluation.lookup(center, belief.vector, circulation)
-        if result is not None and result[0] is law:  # the same law at the same inputs
-            value.set_value(result[1])
+        target = None if self._target_law is None else self._target_port.Eval(context)
+        key, result = self._last_evaluation.lookup(center, belief.vector, circulation, target)
+        if result is not None:  # the same inputs as the last evaluation: its result
+            value.set_value(result)
             return
+        law = self.law_in(context)
         evaluation = law.evaluate(center, belief, circulation=circulation)
         tube = np.empty(self._dimension + 1)  # the `tube` port value, [c, r]
         tube[:-1] = center
@@ -236,7 +237,7 @@ class SpatiotemporalTube(LeafSystem):
                 f"ċ = {evaluation.center_rate}, r = {evaluation.radius} (a recovery needs "
                 f"a finite max_center_speed, v_c = {law.max_center_speed})"
             )
-        value.set_value(self._last_evaluation.store(key, (law, (evaluation, tube)))[1])
+        value.set_value(self._last_evaluation.store(key, (evaluation, tube)))
 
     def evaluated(self, context: Context) -> tuple[TubeEvaluation, np.ndarray]:
         """The cached (law evaluation, [c, r] with the law's exact radius) in `context`."""
