@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import partial
@@ -9,32 +10,24 @@ from typing import Any
 
 import numpy as np
 from pydrake.geometry import Meshcat, MeshcatVisualizer, MeshcatVisualizerParams, SceneGraph
-from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
+from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, MultibodyPlant
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, OutputPort
 from pydrake.systems.primitives import LogVectorOutput, MatrixGain, Sine, VectorLogSink
 
 from stt_drake.assembly.feasibility import rate_bounds
 from stt_drake.assembly.guide import add_guide
 from stt_drake.assembly.laws import make_arm_law, make_funnel_controller, make_tube_law
-from stt_drake.assembly.load import crowd_setup
+from stt_drake.assembly.perception import add_perception
 from stt_drake.assembly.stt import AddStt
 from stt_drake.config import FrankaArm as FrankaArmConfig
 from stt_drake.config import OmniRobot as OmniRobotConfig
 from stt_drake.config import Quadrotor as QuadrotorConfig
 from stt_drake.config import Scenario
-from stt_drake.core.arm import (
-    ArmLimits,
-    JerkWindow,
-    arm_metrics,
-    summarize_arm,
-)
+from stt_drake.core.arm import ArmLimits, JerkWindow, arm_metrics, summarize_arm
 from stt_drake.core.belief import ObstacleTask
-from stt_drake.core.perception import SensorModel, draw_truth_deviation
-from stt_drake.core.tracking import KalmanTracker
 from stt_drake.systems.belief_source import ObstacleBeliefSource
 from stt_drake.systems.crowd import CrowdSimulator
 from stt_drake.systems.monitor import InvariantMonitor
-from stt_drake.systems.perception import ObstacleSensor, ObstacleTracker, TrueObstacles
 from stt_drake.systems.plants.franka import (
     ArmKinematics,
     ArmMeasurement,
@@ -63,7 +56,11 @@ class PlantHandles:
     `tube`, output `target`) for a sequence of reach-avoid-stay tasks; `logged`, more
     signals to log (log name → port); `log_constants`, constants added to the run log (e.g.
     joint limits); `report`, plant-specific metrics computed from the run log (merged into
-    metrics.json); `summary`, the plant's lines of the run summary from metrics.json."""
+    metrics.json); `summary`, the plant's lines of the run summary from metrics.json.
+
+    With perception, a plant whose sensor is elsewhere (a station over LCM) gives its
+    `detections` (:class:`ObstacleSensor`'s layout): the loop adds only the tracker; its
+    `true_obstacle_position`, where the truth is in this diagram, is logged."""
 
     plant: LeafSystem
     control_input: object  # an InputPort
@@ -76,6 +73,8 @@ class PlantHandles:
     report: Callable[[Mapping[str, np.ndarray]], dict[str, Any]] | None = None
     summary: Callable[[Mapping[str, Any]], list[str]] | None = None
     scene_graph: SceneGraph | None = None
+    detections: OutputPort | None = None
+    true_obstacle_position: OutputPort | None = None
 
 
 @dataclass
@@ -209,36 +208,35 @@ SEQUENCER_PERIOD = 0.01
 JERK_SETTLE_TIME = 1.0
 
 
-def add_franka(builder: DiagramBuilder, scenario: Scenario) -> PlantHandles:
-    """FR3 arm: continuous-time MultibodyPlant + SceneGraph (torque actuation), the robot's
-    torque interface (gravity compensation from its own model, saturation), the TCP
-    measurement, the arm's STT controller, the external jerks and the pick-and-place task
-    sequencer."""
+@dataclass
+class Fr3Robot:
+    """What :func:`add_fr3_robot` added, and its signals to log."""
+
+    plant: MultibodyPlant
+    scene_graph: SceneGraph
+    interface: ArmRobotInterface
+    logged: dict[str, OutputPort]
+
+
+def add_fr3_robot(builder: DiagramBuilder, scenario: Scenario) -> Fr3Robot:
+    """The FR3 as a station simulates it: continuous-time MultibodyPlant + SceneGraph, the
+    robot's torque interface (gravity compensation from its own model, saturation) and the
+    scenario's external jerks; logs joint state, requested/applied torque, jerk force."""
     config: FrankaArmConfig = scenario.plant
     plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=0.0)
     add_fr3(plant)
     plant.Finalize()
     plant.SetDefaultPositions(np.asarray(config.initial_configuration, dtype=float))
-    limits = ArmLimits.of(plant)
     interface = builder.AddNamedSystem(
         "fr3_robot_interface", ArmRobotInterface(make_fr3_plant(), config.gravity_compensation)
     )
-    measurement = builder.AddNamedSystem("fr3_measurement", ArmMeasurement(plant))
-    law = make_arm_law(scenario, limits)
-    controller = builder.AddNamedSystem(
-        "arm_stt_controller", ArmSTTController(law, ArmKinematics())
-    )
     state = plant.get_state_output_port()
     builder.Connect(state, interface.GetInputPort("state"))
-    builder.Connect(state, measurement.GetInputPort("state"))
-    builder.Connect(plant.get_body_poses_output_port(), measurement.GetInputPort("body_poses"))
     builder.Connect(interface.GetOutputPort("actuation"), plant.get_actuation_input_port())
     logged = {
         "joint_state": state,
         "requested_torque": interface.GetOutputPort("requested_torque"),
         "applied_torque": interface.GetOutputPort("actuation"),
-        "funnel_errors": controller.GetOutputPort("funnel_errors"),
-        "joint_velocity_reference": controller.GetOutputPort("joint_velocity_reference"),
     }
     jerks = [
         Jerk(
@@ -256,6 +254,23 @@ def add_franka(builder: DiagramBuilder, scenario: Scenario) -> PlantHandles:
             pushes.GetOutputPort("spatial_forces"), plant.get_applied_spatial_force_input_port()
         )
         logged["external_force"] = pushes.GetOutputPort("force")
+    return Fr3Robot(plant, scene_graph, interface, logged)
+
+
+def add_arm_controller(
+    builder: DiagramBuilder,
+    scenario: Scenario,
+    limits: ArmLimits,
+    kinematics: ArmKinematics,
+    measured: PlantHandles,
+) -> PlantHandles:
+    """The FR3's controller side around its `measured` ports (the simulated robot's or the
+    status received over LCM): the arm's STT controller, the task sequencer, the limits as
+    log constants and the arm's report (:func:`stt_drake.core.arm.arm_metrics`)."""
+    config: FrankaArmConfig = scenario.plant
+    controller = builder.AddNamedSystem(
+        "arm_stt_controller", ArmSTTController(make_arm_law(scenario, limits), kinematics)
+    )
     targets = scenario.task_targets()
     sequencer = None
     if len(targets) > 1:
@@ -265,11 +280,13 @@ def add_franka(builder: DiagramBuilder, scenario: Scenario) -> PlantHandles:
                 targets, scenario.target_set_radius, config.hold_time, SEQUENCER_PERIOD
             ),
         )
-    return PlantHandles(
-        plant=plant,
-        control_input=interface.GetInputPort("torque_command"),
-        output=measurement.GetOutputPort("output"),
-        plant_state=measurement.GetOutputPort("plant_state"),
+    logged = {
+        **measured.logged,
+        "funnel_errors": controller.GetOutputPort("funnel_errors"),
+        "joint_velocity_reference": controller.GetOutputPort("joint_velocity_reference"),
+    }
+    return dataclasses.replace(
+        measured,
         controller=controller,
         sequencer=sequencer,
         logged=logged,
@@ -282,13 +299,34 @@ def add_franka(builder: DiagramBuilder, scenario: Scenario) -> PlantHandles:
         report=partial(
             arm_metrics,
             limits=limits,
-            jerks=[JerkWindow(j.start, j.start + j.duration) for j in jerks],
+            jerks=[JerkWindow(j.time, j.time + j.duration) for j in config.jerks],
             settle=JERK_SETTLE_TIME,
             targets=targets,
             target_set_radius=scenario.target_set_radius,
         ),
         summary=summarize_arm,
-        scene_graph=scene_graph,
+    )
+
+
+def add_franka(builder: DiagramBuilder, scenario: Scenario) -> PlantHandles:
+    """FR3 arm: the robot (:func:`add_fr3_robot`), its TCP measurement and the controller
+    side (:func:`add_arm_controller`)."""
+    robot = add_fr3_robot(builder, scenario)
+    measurement = builder.AddNamedSystem("fr3_measurement", ArmMeasurement(robot.plant))
+    builder.Connect(robot.plant.get_state_output_port(), measurement.GetInputPort("state"))
+    builder.Connect(
+        robot.plant.get_body_poses_output_port(), measurement.GetInputPort("body_poses")
+    )
+    measured = PlantHandles(
+        plant=robot.plant,
+        control_input=robot.interface.GetInputPort("torque_command"),
+        output=measurement.GetOutputPort("output"),
+        plant_state=measurement.GetOutputPort("plant_state"),
+        logged=robot.logged,
+        scene_graph=robot.scene_graph,
+    )
+    return add_arm_controller(
+        builder, scenario, ArmLimits.of(robot.plant), ArmKinematics(), measured
     )
 
 
@@ -310,93 +348,6 @@ def add_loggers(
         loggers[name] = LogVectorOutput(port, builder, period)
         loggers[name].set_name(f"{name}_logger")
     return loggers
-
-
-@dataclass
-class PerceptionHandles:
-    """The perception chain :func:`add_perception` added."""
-
-    truth: TrueObstacles | CrowdSimulator
-    sensor: ObstacleSensor
-    tracker: ObstacleTracker
-
-
-#: Independent random streams of one scenario seed (numpy SeedSequence spawn keys).
-TRUTH_STREAM, SENSOR_STREAM = 1, 2
-
-
-def add_crowd(
-    builder: DiagramBuilder, scenario: Scenario, robot_output: OutputPort
-) -> CrowdSimulator:
-    """The interactive crowd of `scenario.crowd` (:class:`CrowdSimulator`, named "crowd"),
-    the robot's position (`robot_output`) connected to it; its slots are the scenario's
-    obstacles (:func:`stt_drake.assembly.load.crowd_obstacles`, the same draw)."""
-    config = scenario.crowd
-    crowd = builder.AddNamedSystem(
-        "crowd", CrowdSimulator(crowd_setup(scenario), config.robot_radius, config.period)
-    )
-    builder.Connect(robot_output, crowd.GetInputPort("robot_position"))
-    return crowd
-
-
-def add_perception(
-    builder: DiagramBuilder, scenario: Scenario, robot_output: OutputPort
-) -> PerceptionHandles:
-    """True obstacles → sensor (ranging from `robot_output`) → Kalman tracker, drawn from
-    the scenario's seed (`scenario.perception`, :class:`~stt_drake.config.Perception`)."""
-    config = scenario.perception
-    n, count = scenario.dimension, len(scenario.obstacles)
-    horizon = scenario.duration + config.latency + config.sensor_period
-    if scenario.crowd is not None and scenario.crowd.interactive:  # the pedestrians, who
-        # see the robot, are the truth
-        truth = add_crowd(builder, scenario, robot_output)
-    else:
-        truth_draws = np.random.default_rng([scenario.seed, TRUTH_STREAM])
-        path = draw_truth_deviation(
-            count, n, config.process_noise_density, config.truth_period, horizon, truth_draws
-        )
-        truth = builder.AddNamedSystem(
-            "true_obstacles", TrueObstacles([o.motion for o in scenario.obstacles], n, path)
-        )
-    model = SensorModel(
-        count,
-        n,
-        config.sensor_period,
-        horizon,
-        config.noise(n),
-        config.dropout_probability,
-        config.sensing_range or np.inf,
-        np.random.default_rng([scenario.seed, SENSOR_STREAM]),
-    )
-    crowd = isinstance(truth, CrowdSimulator)
-    sensor = builder.AddNamedSystem(
-        "obstacle_sensor", ObstacleSensor(model, config.latency, presence=crowd)
-    )
-    if crowd:  # a pedestrian out of the scene is not detected
-        builder.Connect(
-            truth.GetOutputPort("pedestrian_active"), sensor.GetInputPort("obstacle_present")
-        )
-    tracker = KalmanTracker(
-        n,
-        config.tracker_density(),
-        config.tracker_noise(n),
-        config.initial_velocity_sigma,
-        config.track_timeout,
-        config.adaptation(n),
-    )
-    tracking = builder.AddNamedSystem(
-        "obstacle_tracker",
-        ObstacleTracker(
-            tracker, count, config.sensor_period, config.blend_time, offset=config.latency
-        ),
-    )
-    builder.Connect(
-        truth.GetOutputPort("true_obstacle_position"),
-        sensor.GetInputPort("true_obstacle_position"),
-    )
-    builder.Connect(robot_output, sensor.GetInputPort("robot_position"))
-    builder.Connect(sensor.GetOutputPort("detections"), tracking.GetInputPort("detections"))
-    return PerceptionHandles(truth, sensor, tracking)
 
 
 def add_live_view(
@@ -451,7 +402,7 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> SttDiag
     source: dict[str, Any] = {"obstacles": scenario.obstacles}
     perceived = None
     if scenario.perception is not None:
-        perceived = add_perception(builder, scenario, plant.output)
+        perceived = add_perception(builder, scenario, plant.output, plant.detections)
         source = {
             "belief": perceived.tracker.GetOutputPort("obstacle_belief"),
             "task": ObstacleTask.of(scenario.obstacles),
@@ -486,7 +437,11 @@ def build_diagram(scenario: Scenario, meshcat: Meshcat | None = None) -> SttDiag
     }
     extra = dict(plant.logged)
     if perceived is not None:  # the truth the end-to-end check needs, and the corrections
-        extra["true_obstacle_position"] = perceived.truth.GetOutputPort("true_obstacle_position")
+        truth = plant.true_obstacle_position
+        if perceived.truth is not None:
+            truth = perceived.truth.GetOutputPort("true_obstacle_position")
+        if truth is not None:
+            extra["true_obstacle_position"] = truth
         extra["belief_updates"] = perceived.tracker.GetOutputPort("belief_updates")
         if isinstance(perceived.truth, CrowdSimulator):
             extra["pedestrian_active"] = perceived.truth.GetOutputPort("pedestrian_active")

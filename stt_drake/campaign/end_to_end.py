@@ -3,7 +3,7 @@ simulated per run, collisions counted against the TRUE obstacles.
 
 Run i loads the scenario with its own seed (:func:`stt_drake.campaign.sampling.run_seed`),
 which draws the obstacles' process noise, the sensor's noise and dropouts (and the plant's
-seeded disturbance) afresh (:func:`stt_drake.assembly.diagram.add_perception`); the scenario
+seeded disturbance) afresh (:func:`stt_drake.assembly.perception.add_perception`); the scenario
 must have a `perception:` section. At every logged time k the run records:
 
 * a collision of the output with obstacle j when ‖y(t_k) − O_j^true(t_k)‖ < r_o_j, and of

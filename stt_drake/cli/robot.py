@@ -87,16 +87,19 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     """Declare `stt-drake station`, `stt-drake controller` and `stt-drake merge-logs`."""
     station = commands.add_parser(
         "station",
-        help="run a scenario's robot (plant, drive interface) on its own, over LCM",
+        help="run a scenario's robot (plant, drive interface; with perception the "
+        "obstacles and the sensor) on its own, over LCM",
         description="Publishes the robot's status and applies the controller's commands "
-        "at the scenario's lcm.control_rate_hz, paced at real time; ends at the scenario's "
-        "duration or when the commands go stale.",
+        "at the scenario's lcm.control_rate_hz (with perception, publishes the sensor's "
+        "detections at its rate), paced at real time; ends at the scenario's duration or "
+        "when the commands go stale.",
     )
     _add_common(station)
     station.set_defaults(handler=_station)
     controller = commands.add_parser(
         "controller",
-        help="run a scenario's STT controller and monitor on its own, over LCM",
+        help="run a scenario's STT controller (tracker, tube, controller) and monitor on "
+        "its own, over LCM",
         description="Exit code 0: every guarantee held and the target was reached; 1: a "
         "guarantee failed, the target was not reached or the run stopped (a stale status: "
         "the safe command was sent); 2: bad input.",

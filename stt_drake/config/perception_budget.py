@@ -3,7 +3,7 @@ allocates and copies, estimated from the scenario before anything is drawn, for 
 and work budgets of :mod:`stt_drake.config.limits`.
 
 All three pieces are drawn or held over the horizon H = duration + latency + sensor_period
-(``stt_drake.assembly.diagram.add_perception``), for m obstacles in R^n:
+(``stt_drake.assembly.perception.add_perception``), for m obstacles in R^n:
 
 * the truth path (:func:`stt_drake.core.perception.draw_truth_deviation`; nothing when
   `process_noise_density` is 0): K = H/truth_period grid steps; the kicks are drawn as

@@ -30,6 +30,7 @@ from stt_drake.config.covariance import (
     require_covariances,
     require_sigma,
 )
+from stt_drake.config.lcm import validate_lcm
 from stt_drake.config.limits import check_limits, require, rule_path
 from stt_drake.config.schema import (
     PLANT_DIMENSION,
@@ -439,6 +440,8 @@ def validate(scenario: Scenario) -> None:
         validate_perception(scenario.perception, scenario)
     if scenario.guide is not None:
         validate_guide(scenario.guide, scenario)
+    if scenario.lcm is not None:
+        validate_lcm(scenario.lcm)
     _validate_plant(scenario)
     stages = PLANT_STAGES[type(scenario.plant)]
     funnel_dimension = PLANT_FUNNEL_DIMENSION.get(type(scenario.plant), n)

@@ -2,9 +2,11 @@
 
 The station (:func:`add_station`) is the plant and its drive interface (the omni base's
 wheel interface, the quadrotor, the FR3's MultibodyPlant with its torque interface and the
-external jerks), publishing the measured state and applying the received command. The
-controller is the scenario's usual loop (:func:`stt_drake.assembly.diagram.build_diagram`:
-tube, controller, monitor, the arm's sequencer) around a *remote plant*: a plant builder
+external jerks), publishing the measured state and applying the received command, and with
+perception the obstacles' truth and the sensor, publishing their detections. The split is
+at the detections: the controller is the scenario's usual loop
+(:func:`stt_drake.assembly.diagram.build_diagram`: tracker, tube, controller, monitor, the
+arm's sequencer) around a *remote plant*: a plant builder
 (:func:`add_remote_plant`) whose ports are the LCM link instead of a simulated robot. It
 is registered in :data:`~stt_drake.assembly.diagram.PLANT_BUILDERS` for the
 ``Remote*`` plant configs of :func:`remote_scenario`, so the monitor, the run log and
@@ -14,7 +16,8 @@ Channels (plus the `lcm.channel_suffix`): omni robot and quadrotor ``STT_STATUS`
 (:class:`stt_lcm.robot_state`) and ``STT_COMMAND`` (:class:`stt_lcm.robot_command`); the
 FR3 ``PANDA_STATUS``/``PANDA_COMMAND`` (Drake's ``lcmt_panda_status``/``lcmt_panda_command``,
 torque mode, through ``pydrake.manipulation``'s Panda senders and receivers), what
-drake-franka-driver speaks.
+drake-franka-driver speaks; with perception ``STT_DETECTIONS``
+(:class:`stt_lcm.obstacle_detections`) at the sensor's rate.
 """
 
 from __future__ import annotations
@@ -32,7 +35,6 @@ from pydrake.manipulation import (
     PandaControlMode,
     PandaStatusSender,
 )
-from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.lcm import (
     LcmInterfaceSystem,
@@ -43,33 +45,25 @@ from pydrake.systems.lcm import (
 from pydrake.systems.primitives import Demultiplexer
 
 from stt_drake.assembly.checks import initial_stage_states
-from stt_drake.assembly.diagram import (
-    PlantHandles,
-    add_omni_robot,
-    add_quadrotor,
-)
+from stt_drake.assembly.diagram import PlantHandles, add_fr3_robot, add_omni_robot, add_quadrotor
+from stt_drake.assembly.perception import add_obstacle_sensing
 from stt_drake.config import FrankaArm, Quadrotor, Scenario
 from stt_drake.config.lcm import LcmConfig
 from stt_drake.robot.messages import (
     CommandDecoder,
+    DetectionsEncoder,
     StateEncoder,
     command_message,
     state_message,
 )
-from stt_drake.robot.stt_lcm import robot_command, robot_state
+from stt_drake.robot.stt_lcm import obstacle_detections, robot_command, robot_state
 from stt_drake.robot.transport import (
     FilteredSubscriber,
     LinkClock,
     cpp_serializer,
 )
-from stt_drake.systems.plants.franka import (
-    FR3_JOINTS,
-    ArmRobotInterface,
-    ExternalJerks,
-    Jerk,
-    add_fr3,
-    make_fr3_plant,
-)
+from stt_drake.systems.crowd import CrowdSimulator
+from stt_drake.systems.plants.franka import FR3_JOINTS, ArmMeasurement
 
 #: Default channels per plant kind: (status, command).
 DEFAULT_CHANNELS = {
@@ -120,12 +114,25 @@ class Link:
     startup_timeout: float = 0.0
 
     def add_publisher(
-        self, builder: DiagramBuilder, name: str, channel: str, lcm_type: type, cpp: bool = False
+        self,
+        builder: DiagramBuilder,
+        name: str,
+        channel: str,
+        lcm_type: type,
+        cpp: bool = False,
+        period: float | None = None,
+        offset: float = 0.0,
     ) -> LcmPublisherSystem:
-        """An ``LcmPublisherSystem`` of `lcm_type` on `channel`, every control period (`cpp`:
-        Drake's C++ serializer, for the Panda systems' messages)."""
+        """An ``LcmPublisherSystem`` of `lcm_type` on `channel`, every `period` seconds from
+        `offset` (default: every control period; `cpp`: Drake's C++ serializer, for the
+        Panda systems' messages)."""
         publisher = LcmPublisherSystem.Make(
-            channel, lcm_type, self.lcm, publish_period=self.config.period, use_cpp_serializer=cpp
+            channel,
+            lcm_type,
+            self.lcm,
+            publish_period=self.config.period if period is None else period,
+            use_cpp_serializer=cpp,
+            publish_offset=offset,
         )
         return builder.AddNamedSystem(name, publisher)
 
@@ -197,26 +204,77 @@ def add_station(builder: DiagramBuilder, scenario: Scenario, link: Link) -> Plan
     """The station: the scenario's plant and its interface, publishing its status every
     control period on the status channel and applying the newest command accepted from
     the command channel (a safe command before the first). With a `startup_timeout` the
-    station announces its initial status until the controller's first command arrives."""
+    station announces its initial status until the controller's first command arrives.
+    With `perception`, it also holds the truth and the sensor
+    (:func:`~stt_drake.assembly.perception.add_obstacle_sensing`, ranging from its plant's
+    output; the interactive crowd sees its robot) and publishes their detections on the
+    detections channel at each delivery (:func:`add_detections_publisher`)."""
     status_channel, command_channel = channels(scenario)
     if isinstance(scenario.plant, FrankaArm):
-        return _add_fr3_station(builder, scenario, link, status_channel, command_channel)
+        station = _add_fr3_station(builder, scenario, link, status_channel, command_channel)
+    else:
+        station = _add_mobile_station(builder, scenario, link, status_channel, command_channel)
+    if scenario.perception is None:
+        return station
+    return add_detections_publisher(builder, scenario, link, station)
+
+
+def add_detections_publisher(
+    builder: DiagramBuilder, scenario: Scenario, link: Link, station: PlantHandles
+) -> PlantHandles:
+    """The station's truth and sensor, their detections published as
+    ``stt_lcm.obstacle_detections`` on `lcm.detections_channel` every sensor period at
+    its deliveries (offset: the sensor's latency), so a tracker updating at the same
+    times reads each sample as it would in process. Returns `station` with the
+    `detections` and `true_obstacle_position` ports, both (and a crowd's
+    `pedestrian_active`) logged."""
+    config = scenario.perception
+    count, n = len(scenario.obstacles), scenario.dimension
+    truth, sensor = add_obstacle_sensing(builder, scenario, station.output)
+    encoder = builder.AddNamedSystem("detections_encoder", DetectionsEncoder(count, n, link.clock))
+    publisher = link.add_publisher(
+        builder,
+        "detections_publisher",
+        link.config.detections_channel,
+        obstacle_detections,
+        period=config.sensor_period,
+        offset=config.latency,
+    )
+    detections = sensor.GetOutputPort("detections")
+    builder.Connect(detections, encoder.GetInputPort("detections"))
+    builder.Connect(encoder.GetOutputPort("obstacle_detections"), publisher.get_input_port())
+    truth_port = truth.GetOutputPort("true_obstacle_position")
+    logged = {"detections": detections, "true_obstacle_position": truth_port}
+    if isinstance(truth, CrowdSimulator):
+        logged["pedestrian_active"] = truth.GetOutputPort("pedestrian_active")
+    return dataclasses.replace(
+        station,
+        logged={**station.logged, **logged},
+        detections=detections,
+        true_obstacle_position=truth_port,
+    )
+
+
+def _add_mobile_station(
+    builder: DiagramBuilder, scenario: Scenario, link: Link, status: str, command: str
+) -> PlantHandles:
+    """The omni robot's or the quadrotor's station, on our robot_state/robot_command."""
     add_plant = add_quadrotor if isinstance(scenario.plant, Quadrotor) else add_omni_robot
     plant = add_plant(builder, scenario)
     y0, x0 = scenario.initial_output(), initial_stage_states(scenario).ravel()
 
     def announce() -> None:
         message = state_message(link.clock.idle(), y0, x0)
-        link.lcm.Publish(status_channel, message.encode(), None)
+        link.lcm.Publish(status, message.encode(), None)
 
     encoder = builder.AddNamedSystem(
         "state_encoder", StateEncoder(scenario.dimension, plant.plant_state.size(), link.clock)
     )
-    publisher = link.add_publisher(builder, "status_publisher", status_channel, robot_state)
+    publisher = link.add_publisher(builder, "status_publisher", status, robot_state)
     subscriber = link.add_subscriber(
         builder,
         "command_subscriber",
-        command_channel,
+        command,
         PySerializer(robot_command),
         command_message(0.0, -1, safe_command(scenario)).encode(),
         announce=announce,
@@ -234,18 +292,13 @@ def add_station(builder: DiagramBuilder, scenario: Scenario, link: Link) -> Plan
 def _add_fr3_station(
     builder: DiagramBuilder, scenario: Scenario, link: Link, status: str, command: str
 ) -> PlantHandles:
-    """The FR3 station: MultibodyPlant + SceneGraph, its torque interface (gravity
-    compensation, saturation) and the external jerks, with the Panda status sender and
-    command receiver (torque mode) on the driver's channels."""
-    config: FrankaArm = scenario.plant
-    plant, _ = AddMultibodyPlantSceneGraph(builder, time_step=0.0)
-    add_fr3(plant)
-    plant.Finalize()
-    q0 = np.asarray(config.initial_configuration, dtype=float)
-    plant.SetDefaultPositions(q0)
-    interface = builder.AddNamedSystem(
-        "fr3_robot_interface", ArmRobotInterface(make_fr3_plant(), config.gravity_compensation)
-    )
+    """The FR3 station: the robot (:func:`~stt_drake.assembly.diagram.add_fr3_robot`:
+    MultibodyPlant + SceneGraph, torque interface, external jerks) with the Panda status
+    sender and command receiver (torque mode) on the driver's channels; its output is the
+    TCP position (what a sensor on the station ranges from)."""
+    robot = add_fr3_robot(builder, scenario)
+    plant, interface = robot.plant, robot.interface
+    q0 = np.asarray(scenario.plant.initial_configuration, dtype=float)
     split = builder.AddNamedSystem("joint_state_split", Demultiplexer([FR3_JOINTS, FR3_JOINTS]))
     sender = builder.AddNamedSystem("panda_status_sender", PandaStatusSender(FR3_JOINTS))
     publisher = link.add_publisher(builder, "status_publisher", status, lcmt_panda_status, cpp=True)
@@ -260,9 +313,11 @@ def _add_fr3_station(
     receiver = builder.AddNamedSystem(
         "panda_command_receiver", PandaCommandReceiver(FR3_JOINTS, PANDA_MODE)
     )
+    measurement = builder.AddNamedSystem("fr3_tcp", ArmMeasurement(plant))
     state = plant.get_state_output_port()
-    builder.Connect(state, interface.GetInputPort("state"))
     builder.Connect(state, split.get_input_port())
+    builder.Connect(state, measurement.GetInputPort("state"))
+    builder.Connect(plant.get_body_poses_output_port(), measurement.GetInputPort("body_poses"))
     builder.Connect(split.get_output_port(0), sender.get_position_measured_input_port())
     builder.Connect(split.get_output_port(1), sender.get_velocity_measured_input_port())
     builder.Connect(split.get_output_port(0), receiver.get_position_measured_input_port())
@@ -275,32 +330,10 @@ def _add_fr3_station(
     builder.Connect(
         receiver.get_commanded_torque_output_port(), interface.GetInputPort("torque_command")
     )
-    builder.Connect(interface.GetOutputPort("actuation"), plant.get_actuation_input_port())
-    jerks = _jerks(scenario, plant)
-    logged = {"applied_torque": interface.GetOutputPort("actuation")}
-    if jerks:
-        pushes = builder.AddNamedSystem("external_jerks", ExternalJerks(jerks))
-        builder.Connect(
-            pushes.GetOutputPort("spatial_forces"), plant.get_applied_spatial_force_input_port()
-        )
-        logged["external_force"] = pushes.GetOutputPort("force")
     return PlantHandles(
         plant=plant,
         control_input=receiver.get_message_input_port(),
-        output=split.get_output_port(0),
+        output=measurement.GetOutputPort("output"),
         plant_state=state,
-        logged=logged,
+        logged=robot.logged,
     )
-
-
-def _jerks(scenario: Scenario, plant: object) -> list[Jerk]:
-    return [
-        Jerk(
-            start=jerk.time,
-            duration=jerk.duration,
-            body=int(plant.GetBodyByName(jerk.link).index()),
-            force=np.asarray(jerk.force, dtype=float),
-            point=np.asarray(jerk.point, dtype=float),
-        )
-        for jerk in scenario.plant.jerks
-    ]

@@ -4,9 +4,9 @@ the repository's ``lcmtypes/*.lcm``) to and from Drake vector ports.
 Each encoder is a LeafSystem with vector inputs and one abstract output (the message, for
 an ``LcmPublisherSystem``); each decoder the reverse, reading the message a
 :class:`~stt_drake.robot.transport.FilteredSubscriber` accepted. The obstacle detections
-have their message and its conversions to and from the sensor's `detections` vector
-(:func:`detections_message`, :func:`detections_vector`); the split does not route them yet
-(:func:`stt_drake.robot.remote.remote_scenario` refuses a scenario with `perception`).
+have their message, its conversions to and from the sensor's `detections` vector
+(:func:`detections_message`, :func:`detections_vector`) and their systems
+(:class:`DetectionsEncoder`, :class:`DetectionsDecoder`).
 Every message carries `utime`: the sender's link clock
 (:class:`~stt_drake.robot.transport.LinkClock`) in microseconds.
 """
@@ -150,3 +150,43 @@ def detections_vector(message: Any, count: int, n: int) -> np.ndarray:
             slots[slot, n] = 1.0 if message.detected[k] else 0.0
             slots[slot, n + 1] = message.stamp[k]
     return slots.ravel()
+
+
+class DetectionsEncoder(LeafSystem):
+    """Input `detections` (an :class:`~stt_drake.systems.perception.ObstacleSensor`'s port:
+    `count` slots in R^n); output `obstacle_detections`, stamped on `clock` at the context
+    time, the samples' stamps on the link clock too."""
+
+    def __init__(self, count: int, n: int, clock: LinkClock) -> None:
+        super().__init__()
+        self._count, self._n, self._clock = count, n, clock
+        self._detections = self.DeclareVectorInputPort("detections", count * (n + 2))
+        self.DeclareAbstractOutputPort(
+            "obstacle_detections", lambda: AbstractValue.Make(obstacle_detections()), self._calc
+        )
+
+    def _calc(self, context: Context, value: AbstractValue) -> None:
+        t = context.get_time()
+        slots = self._detections.Eval(context).reshape(self._count, self._n + 2).copy()
+        link_time = self._clock.now(t)
+        slots[:, -1] = self._clock.to_link(slots[:, -1], t)
+        value.set_value(detections_message(link_time, slots.ravel(), self._count, self._n))
+
+
+class DetectionsDecoder(LeafSystem):
+    """Input `obstacle_detections` (a message); output `detections`, the sensor's port
+    vector (:func:`detections_vector`) with the stamps on this end's clock."""
+
+    def __init__(self, count: int, n: int, clock: LinkClock) -> None:
+        super().__init__()
+        self._count, self._n, self._clock = count, n, clock
+        self._message = self.DeclareAbstractInputPort(
+            "obstacle_detections", AbstractValue.Make(obstacle_detections())
+        )
+        self.DeclareVectorOutputPort("detections", count * (n + 2), self._calc)
+
+    def _calc(self, context: Context, output: BasicVector) -> None:
+        slots = detections_vector(self._message.Eval(context), self._count, self._n)
+        slots = slots.reshape(self._count, self._n + 2)
+        slots[:, -1] = self._clock.from_link(slots[:, -1], context.get_time())
+        output.SetFromVector(slots.ravel())

@@ -3,10 +3,11 @@
 :func:`remote_scenario` gives a scenario whose plant config is a ``Remote*`` subclass of
 its own (same fields; :data:`~stt_drake.assembly.diagram.PLANT_BUILDERS` maps it to
 :func:`add_remote_plant`), so ``build_diagram`` and ``simulate`` build and run the
-controller exactly as ``stt-drake run`` does: tube, controller, the arm's sequencer and
-the invariant monitor, on the state received from the station. metrics.json gains the
-link's `lcm` record (:func:`link_report`): controller tick and status age p50/p99/max,
-and the messages accepted and dropped.
+controller exactly as ``stt-drake run`` does: the tracker (on the station's detections,
+with perception), tube, controller, the arm's sequencer and the invariant monitor, on the
+state received from the station. metrics.json gains the link's `lcm` record
+(:func:`link_report`): controller tick and status age p50/p99/max, and the messages
+accepted and dropped (status, and detections).
 """
 
 from __future__ import annotations
@@ -25,16 +26,10 @@ from pydrake.systems.lcm import PySerializer
 from pydrake.systems.primitives import Multiplexer
 
 from stt_drake.assembly.checks import initial_stage_states
-from stt_drake.assembly.diagram import (
-    JERK_SETTLE_TIME,
-    PLANT_BUILDERS,
-    SEQUENCER_PERIOD,
-    PlantHandles,
-)
-from stt_drake.assembly.laws import make_arm_law
-from stt_drake.config import FrankaArm, OmniRobot, Quadrotor, Scenario, ScenarioError
+from stt_drake.assembly.diagram import PLANT_BUILDERS, PlantHandles, add_arm_controller
+from stt_drake.config import FrankaArm, OmniRobot, Quadrotor, Scenario
 from stt_drake.config.lcm import LcmConfig, validate_lcm
-from stt_drake.core.arm import ArmLimits, JerkWindow, arm_metrics, summarize_arm
+from stt_drake.core.arm import ArmLimits
 from stt_drake.robot.halves import (
     PANDA_MODE,
     Link,
@@ -46,8 +41,14 @@ from stt_drake.robot.halves import (
     panda_status_bytes,
     safe_command,
 )
-from stt_drake.robot.messages import CommandEncoder, StateDecoder, command_message, state_message
-from stt_drake.robot.stt_lcm import robot_command, robot_state
+from stt_drake.robot.messages import (
+    CommandEncoder,
+    DetectionsDecoder,
+    StateDecoder,
+    command_message,
+    state_message,
+)
+from stt_drake.robot.stt_lcm import obstacle_detections, robot_command, robot_state
 from stt_drake.robot.transport import (
     FilteredSubscriber,
     TickTimer,
@@ -58,10 +59,8 @@ from stt_drake.systems.plants.franka import (
     FR3_JOINTS,
     ArmKinematics,
     ArmRobotInterface,
-    ArmSTTController,
     make_fr3_plant,
 )
-from stt_drake.systems.sequencer import TargetSequencer
 
 
 @dataclass
@@ -96,18 +95,10 @@ def remote_scenario(scenario: Scenario, in_process: bool = False) -> Scenario:
     for both halves: deterministic, and the order of the two halves' events is Drake's).
 
     Raises:
-        ScenarioError: a bad `lcm:` section, or a scenario the split does not carry (its
-            obstacles must be scripted: a tracker's detections are not routed over LCM).
+        ScenarioError: a bad `lcm:` section.
     """
     config = scenario.lcm or LcmConfig()
     validate_lcm(config)
-    for name in ("perception", "crowd"):
-        if getattr(scenario, name) is not None:
-            raise ScenarioError(
-                f"scenario.{name}: the station/controller split carries scripted obstacles "
-                f"only (a {name} section's detections do not reach the controller's tracker "
-                "over LCM yet); run it with `stt-drake run`"
-            )
     if in_process:
         config = dataclasses.replace(config, lcm_url="memq://")
     plant = scenario.plant
@@ -117,39 +108,121 @@ def remote_scenario(scenario: Scenario, in_process: bool = False) -> Scenario:
 
 
 def link_report(
-    subscriber: FilteredSubscriber, timer: TickTimer, period: float, log: Any
+    subscriber: FilteredSubscriber,
+    timer: TickTimer,
+    period: float,
+    log: Any,
+    detections: FilteredSubscriber | None = None,
 ) -> dict[str, Any]:
     """The `lcm` record of metrics.json: the control period, the controller's tick and the
-    status age (s, p50/p99/max) and the status messages accepted and dropped."""
-    return {
-        "lcm": {
-            "status_channel": subscriber.channel,
-            "clock_epoch_s": subscriber.clock.epoch,
-            "control_period_s": period,
-            "tick_s": percentiles(timer.ticks),
-            **subscriber.statistics.summary(np.asarray(log["link"])[-1]),
-        }
+    status age (s, p50/p99/max) and the status messages accepted and dropped; with
+    `detections`, their channel's record (`detections`: ages, accepted, dropped, and the
+    silences longer than the tracker's track timeout)."""
+    record = {
+        "status_channel": subscriber.channel,
+        "clock_epoch_s": subscriber.clock.epoch,
+        "control_period_s": period,
+        "tick_s": percentiles(timer.ticks),
+        **subscriber.statistics.summary(np.asarray(log["link"])[-1]),
     }
+    if detections is not None:
+        record["detections"] = {
+            "channel": detections.channel,
+            **detections.statistics.summary(np.asarray(log["detections_link"])[-1]),
+        }
+    return {"lcm": record}
 
 
-def _link(builder: DiagramBuilder, scenario: Scenario) -> Link:
-    """The controller's end of the link (and, in process, the station built beside it)."""
+def _merged_report(reports: tuple[Callable[[Any], dict], ...], log: Any) -> dict:
+    """The records of several reports of one run log in one dict."""
+    merged: dict[str, Any] = {}
+    for report in reports:
+        merged.update(report(log))
+    return merged
+
+
+def _link(builder: DiagramBuilder, scenario: Scenario) -> tuple[Link, PlantHandles | None]:
+    """The controller's end of the link, and in process the station built beside it."""
     config = scenario.lcm or LcmConfig()
     lcm = add_bus(builder, config)
     if scenario.plant.station_in_process:
         clock = link_clock(scenario, two_processes=False)  # the one Simulator's
-        add_station(builder, scenario, Link(lcm, config, clock))
-        return Link(lcm, config, clock)
-    return Link(lcm, config, link_clock(scenario, two_processes=True))
+        station = add_station(builder, scenario, Link(lcm, config, clock))
+        return Link(lcm, config, clock), station
+    return Link(lcm, config, link_clock(scenario, two_processes=True)), None
 
 
 def add_remote_plant(builder: DiagramBuilder, scenario: Scenario) -> PlantHandles:
     """The plant's ports over LCM: the status subscriber (a :class:`FilteredSubscriber`
     whose stale link publishes the safe command) decoded into y and the stage states, and
-    the command encoded and published every control period. Logs the `link` signal."""
-    link = _link(builder, scenario)
-    if isinstance(scenario.plant, FrankaArm):
-        return _add_remote_fr3(builder, scenario, link)
+    the command encoded and published every control period; with perception, the
+    station's detections (:func:`add_remote_detections`). Logs the `link` signal; its
+    report is the link's `lcm` record (and the arm's metrics)."""
+    link, station = _link(builder, scenario)
+    add_half = _add_remote_fr3 if isinstance(scenario.plant, FrankaArm) else _add_remote_mobile
+    handles, subscriber, timer = add_half(builder, scenario, link)
+    detections = None
+    if scenario.perception is not None:
+        handles, detections = add_remote_detections(builder, scenario, link, handles, station)
+    report = partial(link_report, subscriber, timer, link.config.period, detections=detections)
+    if handles.report is not None:
+        report = partial(_merged_report, (handles.report, report))
+    return dataclasses.replace(handles, report=report)
+
+
+def add_remote_detections(
+    builder: DiagramBuilder,
+    scenario: Scenario,
+    link: Link,
+    handles: PlantHandles,
+    station: PlantHandles | None,
+) -> tuple[PlantHandles, FilteredSubscriber]:
+    """The station's detections as the tracker's input: a :class:`FilteredSubscriber` on
+    `lcm.detections_channel` draining at the tracker's update times (every sensor period
+    from its latency: a sample published at its delivery is read by the tracker at that
+    same time, as in process), newer utimes only, and a silence longer than the tracker's
+    `track_timeout` counted, not stopping the run (the tracker loses those tracks); then
+    decoded (:class:`DetectionsDecoder`). Returns `handles` with `detections` (logged, with
+    `detections_link`) and, from an in-process `station`, the truth to log."""
+    config = scenario.perception
+    count, n = len(scenario.obstacles), scenario.dimension
+    subscriber = builder.AddNamedSystem(
+        "detections_subscriber",
+        FilteredSubscriber(
+            link.config.detections_channel,
+            PySerializer(obstacle_detections),
+            link.lcm,
+            config.sensor_period,
+            config.track_timeout,
+            clock=link.clock,
+            offset=config.latency,
+            stop_when_stale=False,
+        ),
+    )
+    decoder = builder.AddNamedSystem("detections_decoder", DetectionsDecoder(count, n, link.clock))
+    builder.Connect(
+        subscriber.GetOutputPort("message"), decoder.GetInputPort("obstacle_detections")
+    )
+    detections = decoder.GetOutputPort("detections")
+    logged = {"detections": detections, "detections_link": subscriber.GetOutputPort("link")}
+    truth = None
+    if station is not None:
+        truth = station.true_obstacle_position
+        if "pedestrian_active" in station.logged:
+            logged["pedestrian_active"] = station.logged["pedestrian_active"]
+    handles = dataclasses.replace(
+        handles,
+        logged={**handles.logged, **logged},
+        detections=detections,
+        true_obstacle_position=truth,
+    )
+    return handles, subscriber
+
+
+def _add_remote_mobile(
+    builder: DiagramBuilder, scenario: Scenario, link: Link
+) -> tuple[PlantHandles, FilteredSubscriber, TickTimer]:
+    """The omni robot's or the quadrotor's remote plant, on robot_state/robot_command."""
     status, command = channels(scenario)
     n, states = scenario.dimension, initial_stage_states(scenario).ravel()
     safe = safe_command(scenario)
@@ -174,14 +247,14 @@ def add_remote_plant(builder: DiagramBuilder, scenario: Scenario) -> PlantHandle
     builder.Connect(subscriber.GetOutputPort("link"), encoder.GetInputPort("link"))
     builder.Connect(timer.GetOutputPort("y"), encoder.GetInputPort("control"))
     builder.Connect(encoder.GetOutputPort("robot_command"), publisher.get_input_port())
-    return PlantHandles(
+    handles = PlantHandles(
         plant=decoder,
         control_input=timer.GetInputPort("u"),
         output=decoder.GetOutputPort("output"),
         plant_state=decoder.GetOutputPort("plant_state"),
         logged={"link": subscriber.GetOutputPort("link")},
-        report=partial(link_report, subscriber, timer, link.config.period),
     )
+    return handles, subscriber, timer
 
 
 class ArmStatusMeasurement(LeafSystem):
@@ -207,17 +280,15 @@ class ArmStatusMeasurement(LeafSystem):
         output.SetFromVector(np.concatenate([self._position(context), self._state.Eval(context)]))
 
 
-def _arm_report(link: Callable[[Any], dict], arm: Callable[[Any], dict], log: Any) -> dict:
-    """The arm's metrics (:func:`stt_drake.core.arm.arm_metrics`) and the link's record."""
-    return {**arm(log), **link(log)}
-
-
-def _add_remote_fr3(builder: DiagramBuilder, scenario: Scenario, link: Link) -> PlantHandles:
+def _add_remote_fr3(
+    builder: DiagramBuilder, scenario: Scenario, link: Link
+) -> tuple[PlantHandles, FilteredSubscriber, TickTimer]:
     """The FR3 over the driver's messages: ``lcmt_panda_status`` through Drake's
-    PandaStatusReceiver into the TCP measurement, the arm's STT controller and its task
-    sequencer, and its torque through PandaCommandSender (torque mode) as
-    ``lcmt_panda_command``. `requested_torque` is logged as the robot's interface would
-    form it (command + gravity compensation of the robot's model), for the limits report."""
+    PandaStatusReceiver into the TCP measurement and the arm's controller side
+    (:func:`~stt_drake.assembly.diagram.add_arm_controller`), and its torque through
+    PandaCommandSender (torque mode) as ``lcmt_panda_command``. `requested_torque` is
+    logged as the robot's interface would form it (command + gravity compensation of the
+    robot's model), for the limits report."""
     config: FrankaArm = scenario.plant
     status, command = channels(scenario)
     q0 = np.asarray(config.initial_configuration, dtype=float)
@@ -239,10 +310,6 @@ def _add_remote_fr3(builder: DiagramBuilder, scenario: Scenario, link: Link) -> 
     kinematics = ArmKinematics()
     measurement = builder.AddNamedSystem("fr3_measurement", ArmStatusMeasurement(kinematics))
     model = make_fr3_plant()
-    limits = ArmLimits.of(model)
-    controller = builder.AddNamedSystem(
-        "arm_stt_controller", ArmSTTController(make_arm_law(scenario, limits), kinematics)
-    )
     timer = builder.AddNamedSystem("controller_tick", TickTimer(FR3_JOINTS))
     sender = builder.AddNamedSystem(
         "panda_command_sender", PandaCommandSender(FR3_JOINTS, PANDA_MODE)
@@ -261,49 +328,19 @@ def _add_remote_fr3(builder: DiagramBuilder, scenario: Scenario, link: Link) -> 
     builder.Connect(sender.get_output_port(), publisher.get_input_port())
     builder.Connect(timer.GetOutputPort("y"), interface.GetInputPort("torque_command"))
     builder.Connect(joined.get_output_port(), interface.GetInputPort("state"))
-    targets = scenario.task_targets()
-    sequencer = None
-    if len(targets) > 1:
-        sequencer = builder.AddNamedSystem(
-            "target_sequencer",
-            TargetSequencer(
-                targets, scenario.target_set_radius, config.hold_time, SEQUENCER_PERIOD
-            ),
-        )
-    jerks = [JerkWindow(jerk.time, jerk.time + jerk.duration) for jerk in config.jerks]
-    arm = partial(
-        arm_metrics,
-        limits=limits,
-        jerks=jerks,
-        settle=JERK_SETTLE_TIME,
-        targets=targets,
-        target_set_radius=scenario.target_set_radius,
-    )
-    return PlantHandles(
+    measured = PlantHandles(
         plant=measurement,
         control_input=timer.GetInputPort("u"),
         output=measurement.GetOutputPort("output"),
         plant_state=measurement.GetOutputPort("plant_state"),
-        controller=controller,
-        sequencer=sequencer,
         logged={
             "joint_state": joined.get_output_port(),
             "requested_torque": interface.GetOutputPort("requested_torque"),
-            "funnel_errors": controller.GetOutputPort("funnel_errors"),
-            "joint_velocity_reference": controller.GetOutputPort("joint_velocity_reference"),
             "link": subscriber.GetOutputPort("link"),
         },
-        log_constants={
-            "position_lower": limits.position_lower,
-            "position_upper": limits.position_upper,
-            "velocity_limit": limits.velocity,
-            "effort_limit": limits.effort,
-        },
-        report=partial(
-            _arm_report, partial(link_report, subscriber, timer, link.config.period), arm
-        ),
-        summary=summarize_arm,
     )
+    limits = ArmLimits.of(model)
+    return add_arm_controller(builder, scenario, limits, kinematics, measured), subscriber, timer
 
 
 for _config, _remote in REMOTE_PLANTS.items():

@@ -34,9 +34,10 @@ from stt_drake.runlog import RunLog, write_json
 
 def simulate_split(scenario: Scenario, strict: bool | None = None) -> RunResult:
     """Both halves in one Simulator over an in-process ``memq://`` bus: the station's
-    status and the controller's command cross the link every control period, and the
-    controller's run is checked and reported as ``stt-drake run``'s (its metrics gain
-    the link's `lcm` record)."""
+    status and the controller's command cross the link every control period (with
+    perception, the station's detections every sensor period), and the controller's run
+    is checked and reported as ``stt-drake run``'s (its metrics gain the link's `lcm`
+    record; the truth, in the same diagram, is logged as in process)."""
     return simulate(remote_scenario(scenario, in_process=True), strict)
 
 

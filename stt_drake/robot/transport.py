@@ -25,9 +25,10 @@ from pydrake.lcm import DrakeLcmInterface
 from pydrake.systems.framework import BasicVector, Context, LeafSystem, State
 from pydrake.systems.lcm import SerializerInterface
 
-#: The `link` output of a :class:`FilteredSubscriber`, in order: 1.0 once stale, the
-#: newest accepted message's age (s), the messages accepted, the duplicates and the
-#: out-of-order messages dropped, and the newest accepted utime (µs; −1 before any).
+#: The `link` output of a :class:`FilteredSubscriber`, in order: the silences longer than
+#: the stale timeout (a link that stops at the first: 1.0 once stale), the newest accepted
+#: message's age (s), the messages accepted, the duplicates and the out-of-order messages
+#: dropped, and the newest accepted utime (µs; −1 before any).
 LINK_FIELDS = ("stale", "age_s", "accepted", "duplicates", "out_of_order", "newest_utime")
 
 #: Bytes of an LCM message before its first field (the type's fingerprint).
@@ -78,6 +79,23 @@ class LinkClock:
         clock, or 0."""
         return time.time() if self.wall else 0.0
 
+    def to_link(self, times: np.ndarray, t: float) -> np.ndarray:
+        """This end's times (s; e.g. a sensor's stamps) on the link clock, read at this
+        end's time `t` (identity in one Simulator)."""
+        if not self.wall:
+            return times
+        self.now(t)
+        return times + self.epoch
+
+    def from_link(self, times: np.ndarray, t: float) -> np.ndarray:
+        """Link-clock times as this end's times, read at this end's time `t`, none later
+        than `t` (the two processes' clocks are aligned only within the start-up
+        handshake; identity in one Simulator)."""
+        if not self.wall:
+            return times
+        self.now(t)
+        return np.minimum(times - self.epoch, t)
+
 
 @dataclass
 class LinkStatistics:
@@ -94,6 +112,7 @@ class LinkStatistics:
             "accepted": int(values["accepted"]),
             "duplicates_dropped": int(values["duplicates"]),
             "out_of_order_dropped": int(values["out_of_order"]),
+            "silences": int(values["stale"]),
         }
 
 
@@ -126,7 +145,7 @@ class TickTimer(LeafSystem):
 
 
 class FilteredSubscriber(LeafSystem):
-    """Subscribes to `channel` on `lcm` and, every `period` seconds (the tick, offset 0),
+    """Subscribes to `channel` on `lcm` and, every `period` seconds (the tick, from `offset`),
     pumps the bus and drains what arrived: a message with a utime above the newest
     accepted one is accepted (the newest of them is kept), any other is dropped and
     counted as a duplicate (same utime) or out of order (older).
@@ -134,7 +153,9 @@ class FilteredSubscriber(LeafSystem):
     Outputs `message`, the newest accepted message decoded by `serializer` (the encoded
     `default` before any: the value the other end starts from), and `link` (:data:`LINK_FIELDS`).
     Without a new message for more than `stale_timeout` seconds (counted from t = 0
-    before the first) the tick calls `on_stale` (with the time) and raises :class:`StaleLinkError`.
+    before the first) the tick calls `on_stale` (with the time) and raises :class:`StaleLinkError`;
+    with `stop_when_stale` False it only counts the silence (a link whose silence is
+    handled downstream, e.g. detections, whose tracker loses its tracks).
     With `startup_timeout` > 0 the initialization waits up to that many wall-clock
     seconds for a first message (the other process may start later), calling `announce`
     (e.g. publishing this end's initial status) every 0.1 s meanwhile, and raises
@@ -152,6 +173,8 @@ class FilteredSubscriber(LeafSystem):
         clock: LinkClock,
         default: bytes = b"",
         startup_timeout: float = 0.0,
+        offset: float = 0.0,
+        stop_when_stale: bool = True,
         on_stale: Callable[[float], None] | None = None,
         announce: Callable[[], None] | None = None,
     ) -> None:
@@ -159,6 +182,7 @@ class FilteredSubscriber(LeafSystem):
         self._channel, self._lcm, self._serializer = channel, lcm, serializer
         self._timeout, self._clock, self._on_stale = stale_timeout, clock, on_stale
         self._startup_timeout, self._announce = startup_timeout, announce
+        self._stop_when_stale = stop_when_stale
         self._inbox: list[bytes] = []
         self.statistics = LinkStatistics()
         lcm.Subscribe(channel, self._inbox.append)
@@ -167,9 +191,9 @@ class FilteredSubscriber(LeafSystem):
             serializer.Deserialize(default, self._model)
         self._raw = self.DeclareAbstractState(AbstractValue.Make(b""))
         # [newest utime (µs), tick of its acceptance (s), accepted, duplicates, out of order,
-        #  age (s), stale]
-        self._counts = self.DeclareDiscreteState(np.array([-1.0, 0.0, 0, 0, 0, 0.0, 0.0]))
-        self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._drain)
+        #  age (s), silences, 1.0 while silent past the timeout]
+        self._counts = self.DeclareDiscreteState(np.array([-1.0, 0.0, 0, 0, 0, 0.0, 0.0, 0.0]))
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period, offset, self._drain)
         if startup_timeout > 0.0:
             self.DeclareInitializationUnrestrictedUpdateEvent(self._wait_for_first)
         self.DeclareAbstractOutputPort("message", self._model.Clone, self._calc_message)
@@ -216,8 +240,12 @@ class FilteredSubscriber(LeafSystem):
             counts[5] = self._clock.now(t) - counts[0] * 1e-6
             self.statistics.ages.append(float(counts[5]))
         silent = t - counts[1]
-        if silent > self._timeout:
-            counts[6] = 1.0
+        if silent <= self._timeout:
+            counts[7] = 0.0
+        elif not self._stop_when_stale:
+            counts[6] += 1.0 - counts[7]  # one count per silence
+            counts[7] = 1.0
+        else:
             if self._on_stale is not None:
                 self._on_stale(t)
             raise StaleLinkError(

@@ -20,7 +20,7 @@ from stt_drake.robot.transport import (
 )
 
 
-def _subscriber(lcm, on_stale=None):
+def _subscriber(lcm, on_stale=None, stop_when_stale=True):
     return FilteredSubscriber(
         "STATUS",
         PySerializer(robot_state),
@@ -30,6 +30,7 @@ def _subscriber(lcm, on_stale=None):
         clock=LinkClock(),
         default=state_message(0.0, np.zeros(2), np.zeros(2)).encode(),
         on_stale=on_stale,
+        stop_when_stale=stop_when_stale,
     )
 
 
@@ -79,3 +80,35 @@ def test_percentiles():
     assert percentiles([]) == {"p50": None, "p99": None, "max": None}
     summary = percentiles(list(range(101)))
     assert (summary["p50"], summary["p99"], summary["max"]) == (50.0, 99.0, 100.0)
+
+
+def test_a_link_that_does_not_stop_counts_each_silence_once():
+    """stop_when_stale False (the detections): a silence longer than the timeout is
+    counted once however long it lasts, and the run goes on."""
+    lcm = DrakeLcm("memq://")
+    subscriber = _subscriber(lcm, stop_when_stale=False)
+    simulator = Simulator(subscriber)
+    simulator.Initialize()
+    for t in (0.0, 0.2, 0.25):  # silent 0–0.2 s (one silence), then in time
+        simulator.AdvanceTo(t)
+        _publish(lcm, t, 1.0)
+    simulator.AdvanceTo(0.6)  # silent again from 0.26 s
+    link = dict(
+        zip(
+            LINK_FIELDS, subscriber.GetOutputPort("link").Eval(simulator.get_context()), strict=True
+        )
+    )
+    assert (link["stale"], link["accepted"]) == (2.0, 3.0)
+
+
+def test_a_wall_clock_link_carries_stamps_on_the_link_clock():
+    """Between processes, stamps go out on the link (wall) clock and come back on the
+    receiver's, none later than its time; in one Simulator both are the identity."""
+    stamps = np.array([0.5, -np.inf])
+    assert LinkClock().to_link(stamps, 1.0) is stamps
+    sender, receiver = LinkClock(wall=True), LinkClock(wall=True)
+    sent = sender.to_link(stamps, 1.0)
+    assert sent[0] == pytest.approx(sender.epoch + 0.5) and sent[1] == -np.inf
+    back = receiver.from_link(sent, 2.0)
+    assert back[0] == pytest.approx(0.5 + sender.epoch - receiver.epoch) and back[0] <= 2.0
+    assert receiver.from_link(np.array([sender.epoch + 50.0]), 2.0)[0] == 2.0
