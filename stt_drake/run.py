@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -147,14 +148,15 @@ def make_simulator(
     strict: bool = False,
     watchdog: StepRateWatchdog | None = None,
     recoveries: RecoveryTracker | None = None,
+    progress: Callable[[float, InvariantTracker], None] | None = None,
 ) -> Simulator:
     """The one place a Simulator is made for a built scenario: the scenario's
     SimulatorConfig, and the invariant monitor attached so every guarantee is checked at
     every step into `tracker` (:meth:`stt_drake.systems.monitor.InvariantMonitor.attach`:
     `strict` stops at the first violation, `watchdog` bounds the step rate, `recoveries`
-    collects the recovery episodes)."""
+    collects the recovery episodes, `progress` is told every step)."""
     simulator = scenario_simulator(built.diagram, scenario)
-    built.monitor.attach(simulator, tracker, strict, watchdog, recoveries)
+    built.monitor.attach(simulator, tracker, strict, watchdog, recoveries, progress)
     return simulator
 
 
@@ -182,7 +184,10 @@ def load_kernels(scenario: Scenario, built: SttDiagram) -> float:
 
 
 def simulate(
-    scenario: Scenario, strict: bool | None = None, meshcat: Meshcat | None = None
+    scenario: Scenario,
+    strict: bool | None = None,
+    meshcat: Meshcat | None = None,
+    progress: Callable[[float, InvariantTracker], None] | None = None,
 ) -> RunResult:
     """Build, simulate for `scenario.duration` and check every guarantee.
 
@@ -195,7 +200,8 @@ def simulate(
     `stop_reason` naming the stall. A strict run of a scenario in which an obstacle covers
     the target for the whole run (Assumption 3, which a non-strict run records) stops
     before its first step with that reason; ``load_scenario(..., strict=True)`` refuses
-    such a file at load instead.
+    such a file at load instead. `progress` is called after every step with the time and
+    the guarantees' tracker (``stt-drake run``'s progress lines).
     """
     strict = scenario.strict if strict is None else strict
     warnings = scenario_warnings(scenario)
@@ -204,7 +210,7 @@ def simulate(
     tracker = InvariantTracker()
     watchdog = StepRateWatchdog(step_rate_limit(scenario.max_steps_per_second))
     recoveries = RecoveryTracker()
-    simulator = make_simulator(built, scenario, tracker, strict, watchdog, recoveries)
+    simulator = make_simulator(built, scenario, tracker, strict, watchdog, recoveries, progress)
     # Kernel compilation (or its on-disk cache's loading) is not simulation: it is done
     # and timed here, before the clock, and reported apart as compile_time_s.
     compile_time = load_kernels(scenario, built)

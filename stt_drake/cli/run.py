@@ -16,6 +16,7 @@ from stt_drake.cli.main import (
     announce_compilation,
     load_scenario_arguments,
 )
+from stt_drake.cli.progress import RunProgress, wants_progress
 
 
 def check_seed_argument(seed: int | None, option: str = "--seed") -> None:
@@ -54,7 +55,8 @@ def _run(args: argparse.Namespace) -> bool:
             scenario, out_dir / "replay.html", strict, meshcat=meshcat, announce=True
         )
     else:
-        result, replay = simulate(scenario, strict=strict), None
+        progress = RunProgress(scenario.duration) if wants_progress(args.quiet) else None
+        result, replay = simulate(scenario, strict=strict, progress=progress), None
     written = write_outputs(result, out_dir, figures=not args.no_figures)
     if replay is not None:
         written.append(replay)
@@ -83,6 +85,11 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "--strict", action="store_true", help="stop at the first violated guarantee"
     )
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    parser.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no progress lines while simulating (they are printed on a terminal only)",
+    )
     parser.add_argument(
         "--no-guide",
         action="store_true",

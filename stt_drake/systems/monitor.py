@@ -221,6 +221,7 @@ class InvariantMonitor(LeafSystem):
         strict: bool,
         watchdog: StepRateWatchdog | None = None,
         recoveries: RecoveryTracker | None = None,
+        progress: Callable[[float, InvariantTracker], None] | None = None,
     ) -> Callable[[Context], EventStatus]:
         """Install a Simulator monitor that folds every step's margins into `tracker`, the
         tube's recovery flags into `recoveries` (with the centre margins, computed only
@@ -229,13 +230,17 @@ class InvariantMonitor(LeafSystem):
         In strict mode the first violation stops the run: ``AdvanceTo`` raises a
         RuntimeError whose message names the invariant, the time and the margin. A tripped
         watchdog ends the run early: ``AdvanceTo`` returns a status whose reason is
-        ``kReachedTerminationCondition``, with `watchdog.message`.
+        ``kReachedTerminationCondition``, with `watchdog.message`. `progress`, if given,
+        is called after every step with the time and the tracker (a command's progress
+        lines).
         """
 
         def monitor(root_context: Context) -> EventStatus:
             context = self.GetMyContextFromRoot(root_context)
             t = context.get_time()
             message = tracker.update(t, self.margins_port.Eval(context))
+            if progress is not None:
+                progress(t, tracker)
             if recoveries is not None:
                 flags = self._recovery_port.Eval(context) > 0.5
                 if recoveries.active or flags.any():
