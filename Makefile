@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-fast bench-history bench-compare lint install lock clean system-packages
+.PHONY: demo test test-fast bench-history bench-compare lint install lock clean system-packages docs
 
 # pyproject.toml gives compatible ranges; requirements.lock pins the exact versions installed
 # here and in CI (.ci/run calls `make test`), so both stay reproducible.
@@ -63,6 +63,11 @@ bench-history: $(STAMP)
 # than 10 % slower (exit 1).
 bench-compare: $(STAMP)
 	$(BIN)/python benchmarks/compare_with_main.py main
+
+# The documentation site (Sphinx; pages in docs/, the API from the docstrings) into
+# docs/_build/html; warnings are errors, as in tests/docs/test_docs_site.py.
+docs: $(STAMP)
+	$(BIN)/python -m sphinx -W --keep-going -b html docs docs/_build/html
 
 system-packages:
 	@if ! command -v dot >/dev/null 2>&1 || ! command -v chromium >/dev/null 2>&1; then \
