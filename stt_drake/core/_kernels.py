@@ -369,17 +369,18 @@ def chi_sf(b: float, a: float, n: int) -> float:
 
 
 @njit(**_JIT)
-def _sankaran_start(eps: float, a: float, n: int) -> float:
+def _sankaran_start(eps: float, a: float, n: int, normal_quantile: float) -> float:
     """Starting s for sf(s) = ε: Sankaran's (1959) normal approximation of χ'²_n(λ = a²)
     inverted, which stays usable in both tails (where Patnaik's and Wilson–Hilferty's
     degrade); where its base goes negative (lower tail of small n + λ), the small-s law
-    P(‖Z‖ ≤ s) ≈ e^{−a²/2} s^n / (2^{n/2} Γ(n/2 + 1)) is inverted instead."""
+    P(‖Z‖ ≤ s) ≈ e^{−a²/2} s^n / (2^{n/2} Γ(n/2 + 1)) is inverted instead.
+    `normal_quantile` is Φ⁻¹(ε)."""
     lam = a * a
     k = float(n)
     h = 1.0 - (2.0 / 3.0) * (k + lam) * (k + 3.0 * lam) / ((k + 2.0 * lam) ** 2)
     p = (k + 2.0 * lam) / ((k + lam) ** 2)
     m = (h - 1.0) * (1.0 - 3.0 * h)
-    z = -ndtri(eps)  # Φ⁻¹(1 − ε) without forming 1 − ε
+    z = -normal_quantile  # Φ⁻¹(1 − ε) without forming 1 − ε
     base = (
         1.0
         + h * p * (h - 1.0 - 0.5 * (2.0 - h) * m * p)
@@ -393,7 +394,16 @@ def _sankaran_start(eps: float, a: float, n: int) -> float:
 
 @njit(**_JIT)
 def chi_isf(eps: float, a: float, n: int) -> float:
-    """The s ≥ 0 with P(‖Z‖ ≥ s) = ε for Z ~ N(a e, I_n), n ∈ {1, 2, 3} (Eq. (8)).
+    """The s ≥ 0 with P(‖Z‖ ≥ s) = ε for Z ~ N(a e, I_n), n ∈ {1, 2, 3} (Eq. (8)):
+    :func:`chi_isf_given` with Φ⁻¹(ε)."""
+    return chi_isf_given(eps, a, n, ndtri(eps))
+
+
+@njit(**_JIT)
+def chi_isf_given(eps: float, a: float, n: int, normal_quantile: float) -> float:
+    """:func:`chi_isf` for a caller that has `normal_quantile` = Φ⁻¹(ε) already (the tube
+    law's pruning bound needs it too): the s ≥ 0 with P(‖Z‖ ≥ s) = ε for Z ~ N(a e, I_n),
+    n ∈ {1, 2, 3} (Eq. (8)).
 
     Halley's iteration on g(s) = sf(s) − ε (g' = −f, g'' = −f·d ln f/ds), started from
     :func:`_sankaran_start` and kept inside a bracket that is valid from the start:
@@ -419,10 +429,10 @@ def chi_isf(eps: float, a: float, n: int) -> float:
     delta = 1.0 - eps  # exact for ε ≥ 1/2
     use_cdf = eps > 0.5
     series = delta < 1e-3 and a < 8.0
-    lo = max(a - ndtri(eps), 0.0)
+    lo = max(a - normal_quantile, 0.0)
     u = -math.log(eps)
     hi = a + math.sqrt(n + 2.0 * math.sqrt(n * u) + 2.0 * u)
-    s = _sankaran_start(eps, a, n)
+    s = _sankaran_start(eps, a, n, normal_quantile)
     if not (s > lo and s < hi):
         s = 0.5 * (lo + hi)
     tried_lo = tried_hi = False

@@ -29,14 +29,24 @@ from stt_drake.core._anisotropic_tube import (
     anisotropic_obstacle,
     projected_sigma,
 )
-from stt_drake.core._kernels import _distance, active_slots, chi_isf, chi_sf, ndtri
+from stt_drake.core._kernels import (
+    _distance,
+    active_slots,
+    chi_isf_given,
+    chi_sf,
+    ndtri,
+)
 from stt_drake.core.backend import jit_options
 from stt_drake.core.constants import BOUNDARY_LAYER, CIRCULATION_MIN_SINE, LAYER_STEP
 
 _JIT = jit_options()
-#: The isotropic per-obstacle terms are inlined into the driver's loop (numba IR inlining:
-#: no call per obstacle).
+#: The isotropic per-obstacle terms and an acting obstacle's share of ċ are inlined into
+#: the driver's loop (numba IR inlining: no call per obstacle, and no reference counting of
+#: its array arguments, ~10 ns an array).
 _INLINE = {**_JIT, "inline": "always"}
+#: e^{−x} below half an ulp of 1 (2^−53 ≈ 1.1e-16) for x above this: added to a sum ≥ 1, it
+#: leaves the sum unchanged (:func:`soft_min_radius`).
+_INVISIBLE_EXPONENT = 37.0
 
 #: Layout of the `constants` array of :func:`tube_step`: k1, r_min, r_max, ν, linear zone δ,
 #: prune_above, max_center_speed, then the target η (n); decoded by :func:`tube_constants`.
@@ -94,10 +104,11 @@ def isotropic_obstacle(
         q = chi_sf((radius + r_min) / sigma, a, n)
     if prune_above == -math.inf:  # ċ, q, θ only: d̂ (and so r) not wanted
         return q, math.nan
-    lower = sigma * max(a - ndtri(epsilon), 0.0) - radius
+    normal_quantile = ndtri(epsilon)  # Φ⁻¹(ε), once for the bound and the quantile
+    lower = sigma * max(a - normal_quantile, 0.0) - radius
     if lower > prune_above:
         return q, lower
-    return q, sigma * chi_isf(epsilon, a, n) - radius
+    return q, sigma * chi_isf_given(epsilon, a, n, normal_quantile) - radius
 
 
 @njit(**_JIT)
@@ -114,7 +125,7 @@ def tube_step(
     spread: np.ndarray,
     circulation: np.ndarray,
     constants: np.ndarray,
-) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
+) -> np.ndarray:
     """One tube-law evaluation (:meth:`stt_drake.core.tube.TubeLaw.evaluate`) in one pass.
 
     `uncertainty` is σ_j (m,) for isotropic beliefs (:func:`isotropic_obstacle`) or Σ_j
@@ -130,24 +141,25 @@ def tube_step(
     per argument).
 
     Returns:
-        (ċ, r, q, d̂, θ).
+        (ċ, r, q, d̂, θ) in one array (:func:`step_parts`): one array to box on return
+        costs less than four.
     """
     k1, r_min, r_max, nu, linear_zone, prune_above, max_speed, target = tube_constants(constants)
     count, n = mean.shape
-    q = np.empty(count)
-    d_hat = np.empty(count)
-    theta = np.zeros(count)
-    goal = np.empty(n)
-    rate = np.empty(n)
-    escape = np.zeros(n)
+    out = np.empty(n + 1 + 3 * count)
+    rate, _radius, q, d_hat, theta = step_parts(out, n)
+    theta[:] = 0.0
+    work = np.empty(6 * n)  # one allocation for the per-call buffers
+    goal = work[:n]
+    escape = work[n : 2 * n]
+    unit = work[2 * n : 3 * n]
+    m = work[3 * n : 4 * n]
+    offset = work[4 * n : 5 * n]  # the full covariance's
+    along = work[5 * n :]
+    escape[:] = 0.0
     share = 0.0  # the largest boundary-layer weight (tube.boundary_layer_weights)
-    no_axis = np.empty(0)
+    no_axis = work[:0]
     _attraction(center, target, k1, linear_zone, goal, rate)
-    unit = np.empty(n)
-    m = np.empty(n)
-    if uncertainty.ndim == 3:  # the full covariance's work buffers
-        offset = np.empty(n)
-        along = np.empty(n)
     inflated = reach.shape[0] == count
     for j in range(count):
         if uncertainty.ndim == 1:
@@ -216,7 +228,24 @@ def tube_step(
             )
             share = max(share, weight)
     _finish_rate(rate, share, escape, goal, max_speed)
-    return rate, soft_min_radius(d_hat, r_max, nu), q, d_hat, theta
+    out[n] = soft_min_radius(d_hat, r_max, nu)
+    return out
+
+
+@njit(**_JIT)
+def step_parts(
+    out: np.ndarray, n: int
+) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
+    """(ċ, r, q, d̂, θ) of a :func:`tube_step` result `out` laid out as [ċ (n), r, q (m),
+    d̂ (m), θ (m)] (views; :func:`stt_drake.core.tube_terms.evaluation_of` in Python)."""
+    count = (out.shape[0] - n - 1) // 3
+    return (
+        out[:n],
+        out[n],
+        out[n + 1 : n + 1 + count],
+        out[n + 1 + count : n + 1 + 2 * count],
+        out[n + 1 + 2 * count :],
+    )
 
 
 @njit(**_JIT)
@@ -231,7 +260,7 @@ def exact_tube_step(
     k3: np.ndarray,
     circulation: np.ndarray,
     constants: np.ndarray,
-) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
+) -> np.ndarray:
     """:func:`tube_step` at the belief itself (no period inflation): σ_j (m,) or Σ_j
     (m, n, n), n = 2, 3 (the rules and bounds of :mod:`stt_drake.core.anisotropic_tube`;
     there q_j and d̂_j are the pruning lower bounds where those decided)."""
@@ -272,7 +301,7 @@ def _attraction(
             rate[i] = k1 * np.cbrt(e)
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _obstacle_terms(
     rate: np.ndarray,
     escape: np.ndarray,
@@ -318,7 +347,7 @@ def _obstacle_terms(
     return th, weight
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _add_null_space(
     rate: np.ndarray, m: np.ndarray, goal: np.ndarray, circulation: np.ndarray, weight: float
 ) -> None:
@@ -350,31 +379,36 @@ def _add_null_space(
             rate[1] += factor * cy
             rate[2] += factor * cz
             return
-    candidate = np.empty(n)
-    for which in range(3):
+    for which in range(3):  # the candidate: goal, e_{n−1}, e_0 (no buffer: no allocation)
+        unit_axis = -1 if which == 0 else (n - 1 if which == 1 else 0)
+        size = 1.0
         if which == 0:
             size = 0.0
             for i in range(n):
-                candidate[i] = goal[i]
                 size += goal[i] * goal[i]
             size = math.sqrt(size)
-        else:
-            candidate[:] = 0.0
-            candidate[n - 1 if which == 1 else 0] = 1.0
-            size = 1.0
         dot = 0.0
         for i in range(n):
-            dot += candidate[i] * m[i] / scale
+            dot += _candidate(goal, unit_axis, i) * m[i] / scale
         length = 0.0
         for i in range(n):
-            o = candidate[i] - dot * m[i] / scale
+            o = _candidate(goal, unit_axis, i) - dot * m[i] / scale
             length += o * o
         length = math.sqrt(length)
         if length > 1e-6 * max(size, 1e-300):
             factor = weight * norm_m / length
             for i in range(n):
-                rate[i] += factor * (candidate[i] - dot * m[i] / scale)
+                rate[i] += factor * (_candidate(goal, unit_axis, i) - dot * m[i] / scale)
             return
+
+
+@njit(**_INLINE)
+def _candidate(goal: np.ndarray, unit_axis: int, i: int) -> float:
+    """Component i of :func:`_add_null_space`'s candidate direction: the goal direction
+    (`unit_axis` −1), else the unit vector e_{unit_axis}."""
+    if unit_axis < 0:
+        return goal[i]
+    return 1.0 if i == unit_axis else 0.0
 
 
 @njit(**_JIT)
@@ -435,18 +469,28 @@ def _recovery_velocity(
 @njit(**_JIT)
 def soft_min_radius(d_hat: np.ndarray, r_max: float, nu: float) -> float:
     """r = −(1/ν) ln(e^{−ν r_max} + Σ_j e^{−ν d̂_j}) (Eq. (14)), shifted by the minimum;
-    NaN if any d̂_j is NaN."""
+    NaN if any d̂_j is NaN.
+
+    The sum starts at the smallest argument's term, e^0 = 1 (the terms reordered), so it
+    stays ≥ 1: a term below e^{−37} ≈ 8.5e-17, under half an ulp of 1, cannot change it
+    and is skipped, exactly (a pruned d̂_j is always such a term: no exp for it)."""
     smallest = r_max
+    nearest = -1  # the index of the smallest d̂_j; −1: r_max is the smallest
     for j in range(d_hat.shape[0]):
         d = d_hat[j]
         if math.isnan(d):
             return math.nan
         if d < smallest:
             smallest = d
-    total = math.exp(-nu * (r_max - smallest))
+            nearest = j
+    total = 1.0
+    if nearest >= 0:
+        exponent = nu * (r_max - smallest)
+        if exponent < _INVISIBLE_EXPONENT:
+            total += math.exp(-exponent)
     for j in range(d_hat.shape[0]):
         exponent = nu * (d_hat[j] - smallest)
-        if exponent < 746.0:  # e^{−746} is 0 in double precision: skipping it is exact
+        if exponent < _INVISIBLE_EXPONENT and j != nearest:
             total += math.exp(-exponent)
     return smallest - math.log(total) / nu
 
@@ -486,10 +530,10 @@ def tube_step_packed(
     k3: np.ndarray,
     circulation: np.ndarray,
     constants: np.ndarray,
-) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
+) -> np.ndarray:
     """:func:`tube_step` on a belief port vector and the task rows ([r_o, ε, p_d] per slot):
     the active slots only, σ_j = √λ_max(Σ_j); per slot outputs with q = 1, d̂ = +∞, θ = 0 in
-    the inactive slots (they never reach ċ or r)."""
+    the inactive slots (they never reach ċ or r); laid out as :func:`tube_step`'s result."""
     n = center.shape[0]
     slots, mean, sigma, rows = active_slots(belief, task, n)
     count = task.shape[0]
@@ -499,7 +543,7 @@ def tube_step_packed(
         for k in range(slots.shape[0]):
             axes[k] = circulation[slots[k]]
     empty = np.empty(0)
-    rate, radius, q_active, d_active, theta_active = tube_step(
+    active = tube_step(
         center,
         mean,
         sigma,
@@ -513,14 +557,21 @@ def tube_step_packed(
         axes,
         constants,
     )
-    q = np.ones(count)
-    d_hat = np.full(count, np.inf)
-    theta = np.zeros(count)
+    if slots.shape[0] == count:
+        return active
+    rate, radius, q_active, d_active, theta_active = step_parts(active, n)
+    out = np.empty(n + 1 + 3 * count)
+    _rate, _radius, q, d_hat, theta = step_parts(out, n)
+    out[:n] = rate
+    out[n] = radius
+    q[:] = 1.0
+    d_hat[:] = np.inf
+    theta[:] = 0.0
     for k in range(slots.shape[0]):
         q[slots[k]] = q_active[k]
         d_hat[slots[k]] = d_active[k]
         theta[slots[k]] = theta_active[k]
-    return rate, radius, q, d_hat, theta
+    return out
 
 
 # --------------------------------------------------------------------------- fixed-rate update
@@ -595,10 +646,12 @@ def _segment_quantile_lower_bound(
     nearest, farthest = _segment_distances(start, end, mean, j)
     offset = max(nearest - reach, 0.0) / sigma
     penalty = spread * (farthest + reach)
-    cheap = (sigma * max(offset - ndtri(epsilon), 0.0) - penalty) / (1.0 + spread) - radius
+    normal_quantile = ndtri(epsilon)
+    cheap = (sigma * max(offset - normal_quantile, 0.0) - penalty) / (1.0 + spread) - radius
     if cheap > prune_above:
         return cheap
-    return (sigma * chi_isf(epsilon, offset, n) - penalty) / (1.0 + spread) - radius
+    quantile = chi_isf_given(epsilon, offset, n, normal_quantile)
+    return (sigma * quantile - penalty) / (1.0 + spread) - radius
 
 
 @njit(**_JIT)
@@ -638,9 +691,10 @@ def tube_advance(
     k1, r_min, r_max, nu, _zone, _prune, max_speed, target = tube_constants(constants)
     reach2, spread2 = _inflation(sigma, mean_speed, sigma_rate, 2.0 * duration)
     position = center.copy()
-    rate, _r, q, _d, theta = tube_step(
+    step_out = tube_step(
         position, mean, sigma, radius, epsilon, p_d, k2, k3, reach2, spread2, circulation, constants
     )
+    rate, _r, q, _d, theta = step_parts(step_out, n)
     remaining = duration
     step = duration
     accepted = 0
@@ -670,7 +724,7 @@ def tube_advance(
             scale = max_speed * step / length if length > max_speed * step else 1.0
             for i in range(n):
                 candidate[i] = position[i] + scale * candidate[i]
-        rate_c, _r, q_c, _d, theta_c = tube_step(
+        candidate_out = tube_step(
             candidate,
             mean,
             sigma,
@@ -684,6 +738,7 @@ def tube_advance(
             circulation,
             constants,
         )
+        rate_c, _r, q_c, _d, theta_c = step_parts(candidate_out, n)
         keeps = True
         for j in range(count):
             gap = q[j] - epsilon[j]
@@ -768,8 +823,11 @@ def tube_advance(
         allowed,
     )
     end_radius = soft_min_radius(ahead, r_max, nu)
-    theta_end = exact_tube_step(
-        position, mean, sigma, radius, epsilon, p_d, k2, k3, circulation, constants
+    theta_end = step_parts(
+        exact_tube_step(
+            position, mean, sigma, radius, epsilon, p_d, k2, k3, circulation, constants
+        ),
+        n,
     )[4]
     return position, certified, accepted, start_radius, end_radius, theta_end
 

@@ -54,6 +54,7 @@ the compiled kernels or that reference (:meth:`TubeLaw.evaluate`).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, fields
 from functools import cached_property
 
@@ -76,6 +77,7 @@ from stt_drake.core.tube_terms import (
     attraction_flow,
     attraction_reach_time,
     boundary_layer_weights,
+    evaluation_of,
     kernel_extras,
     linear_zone_for_step,
     signed_cube_root_attraction,
@@ -114,6 +116,9 @@ def default_nu(obstacle_count: int, r_min: float) -> float:
 #: accuracy is ~1e-13; the isotropic law keeps PRUNE_HEADROOM_NU = 40.
 ANISOTROPIC_PRUNE_HEADROOM_NU = 25.0
 
+#: The (reach, spread) argument of the compiled kernel without period inflation.
+_NO_INFLATION = np.empty(0)
+
 
 @dataclass(frozen=True)
 class TubeLaw:
@@ -150,6 +155,13 @@ class TubeLaw:
     def __post_init__(self) -> None:
         with checked_by("TubeLaw"):
             check_tube_law(*(getattr(self, f.name) for f in fields(TubeLaw)))  # in order
+
+    def __getstate__(self) -> dict[str, object]:
+        """The law for pickle and copy: its fields and constants, without the process's
+        table of compiled kernels (:meth:`_kernel_call`; rebuilt on first use)."""
+        state = dict(self.__dict__)
+        state.pop("_kernel_calls", None)
+        return state
 
     def radius(self, quantile_distance: np.ndarray) -> float:
         """Soft-min radius r = −(1/ν) ln(e^{−ν r_max} + Σ e^{−ν d̂_j}) (Eq. (14)).
@@ -215,6 +227,7 @@ class TubeLaw:
         law.__dict__.update(self.__dict__)
         law.__dict__["target"] = target
         law.__dict__["_kernel_constants"] = (k2, k3, moved)
+        law.__dict__["_kernel_calls"] = {}  # they hold the constants of the old η
         return law
 
     def kernel_arguments(self, count: int, mode: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -227,6 +240,27 @@ class TubeLaw:
                 f"k2/k3: need one gain or one per obstacle ({count}), got {k2.size} and {k3.size}"
             )
         return k2, k3, constants[mode]
+
+    def _kernel_call(
+        self, name: str, n: int, count: int, mode: str
+    ) -> tuple[Callable[..., tuple], np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """(compiled kernel `name`, k2, k3, constants, empty circulation (0, n)) for `count`
+        obstacles in pruning `mode`, or None where the numpy reference runs
+        (:func:`stt_drake.core.backend.compiled`). Looked up once per law and key, not per
+        evaluation: the lookup, the gains' checks and the arrays cost more than the kernel's
+        pruned obstacles (:meth:`with_target` starts the law's table afresh)."""
+        if not backend.using_compiled():  # checked every call: tests switch per block
+            return None
+        calls = self.__dict__.setdefault("_kernel_calls", {})
+        key = (name, n, count, mode)
+        call = calls.get(key)
+        if call is None:
+            kernel = backend.compiled(name, n)
+            if kernel is None:
+                return None
+            call = (kernel, *self.kernel_arguments(count, mode), np.empty((0, n)))
+            calls[key] = call
+        return call
 
     def evaluate(
         self,
@@ -259,18 +293,19 @@ class TubeLaw:
             quantiles: False skips d̂_j and r (NaN): ċ, q_j and θ_j only.
         """
         mode = ("pruned" if prune else "exact") if quantiles else "rate"
-        check_continuous_for_covariance(
-            belief.covariance is not None, inflation is not None, "inflation", inflation, "None"
-        )
         center = np.asarray(center, dtype=float)
-        packed = belief.packed
-        if packed is not None and inflation is None:
-            kernel = backend.compiled("tube_step_packed", belief.dimension)
-            if kernel is not None:
+        if inflation is None:  # else only isotropic beliefs (checked in _evaluate_obstacles)
+            packed = belief.packed
+            if packed is not None:
                 count = len(packed[1])
-                k2, k3, constants = self.kernel_arguments(count, mode)
-                _reach, _spread, axes = kernel_extras((count, belief.dimension), circulation, None)
-                return TubeEvaluation(*kernel(center, *packed, k2, k3, axes, constants))
+                call = self._kernel_call("tube_step_packed", belief.dimension, count, mode)
+                if call is not None:
+                    kernel, k2, k3, constants, axes = call
+                    if circulation is not None:
+                        axes = kernel_extras((count, belief.dimension), circulation, None)[2]
+                    return evaluation_of(
+                        kernel(center, *packed, k2, k3, axes, constants), len(center)
+                    )
         obstacles = belief.obstacles()
         circulation = belief.of_obstacles(circulation)
         return self._evaluate_obstacles(center, obstacles, mode, circulation, inflation).in_slots(
@@ -292,26 +327,30 @@ class TubeLaw:
         """:meth:`evaluate` on the obstacles' arrays (one per obstacle, not per slot)."""
         count, n = belief.mean.shape
         full = belief.covariance is not None
-        kernel = backend.compiled("exact_tube_step" if full else "tube_step", n)
-        if kernel is None:
+        if inflation is not None:
+            check_continuous_for_covariance(full, True, "inflation", inflation, "None")
+        name = "exact_tube_step" if full else "tube_step"
+        call = self._kernel_call(
+            name, n, count, "pruned_anisotropic" if full and mode == "pruned" else mode
+        )
+        if call is None:
             prune_above = {
                 "pruned": self.anisotropic_prune_above if full else self.prune_above,
                 "exact": None,
                 "rate": -np.inf,
             }[mode]
             return evaluate_reference(self, center, belief, prune_above, circulation, inflation)
+        kernel, k2, k3, constants, axes = call
+        if circulation is not None:
+            axes = kernel_extras((count, n), circulation, None)[2]
         if not full:
-            k2, k3, constants = self.kernel_arguments(count, mode)
-            reach, spread, axes = kernel_extras((count, n), circulation, inflation)
-            return TubeEvaluation(
-                *kernel(center, *belief.arrays(), k2, k3, reach, spread, axes, constants)
-            )
-        k2, k3, constants = self.kernel_arguments(
-            count, "pruned_anisotropic" if mode == "pruned" else mode
-        )
-        _reach, _spread, axes = kernel_extras((count, n), circulation, None)
-        return TubeEvaluation(
-            *kernel(
+            reach = spread = _NO_INFLATION
+            if inflation is not None:
+                reach, spread, _axes = kernel_extras((count, n), None, inflation)
+            arguments = (*belief.arrays(), k2, k3, reach, spread, axes, constants)
+            return evaluation_of(kernel(center, *arguments), n)
+        return evaluation_of(
+            kernel(
                 center,
                 np.ascontiguousarray(belief.mean, dtype=float),
                 np.ascontiguousarray(belief.covariance, dtype=float).reshape(count, n, n),
@@ -322,7 +361,8 @@ class TubeLaw:
                 k3,
                 axes,
                 constants,
-            )
+            ),
+            n,
         )
 
     #: The fixed-rate (real-time) update over one period:
