@@ -3,13 +3,17 @@ commit (default ``main``) and then on the working tree, on this machine; prints 
 minimum and median on both and their ratios, names every row more than :data:`THRESHOLD`
 slower on the working tree, and exits 1 if there is one (2 if a run could not be made).
 
-The reference is exported with ``git archive`` into a temporary folder and imported ahead of
-the working tree (``PYTHONPATH``); both runs time the working tree's benchmark files, so
-they measure the same calls. A row is slower when both its minimum and its median over the
-rounds grew by more than the threshold: a real slowdown moves both, while noise here moved
-one at a time (a closed loop's lucky round put its minimum 30 % below its median; a busy
-moment moved a kernel's median by 16 % with its minimum within 3 %). Run it on a quiet
-machine: other processes move closed loops by 10-25 % here.
+The reference is exported with ``git archive`` into a temporary folder, the working tree's
+benchmark files are copied into it, and its rows run from there: pytest puts the folder it
+runs from first on ``sys.path``, so run from the working tree both runs would time the
+working tree. Both runs time the working tree's benchmark files, so they measure the same
+calls, and each checks that it imported the tree it was asked to time
+(:data:`TREE_VARIABLE`, checked by ``benchmarks/conftest.py``). A row is slower when both
+its minimum and its median over the rounds grew by more than the threshold: a real slowdown
+moves both, while noise here moved one at a time (a closed loop's lucky round put its
+minimum 30 % below its median; a busy moment moved a kernel's median by 16 % with its
+minimum within 3 %). Run it on a quiet machine: other processes move closed loops by
+10-25 % here.
 
 Usage: ``python benchmarks/compare_with_main.py [REF]``.
 """
@@ -18,6 +22,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -26,18 +31,23 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 #: A row whose minimum and median both grow by more than this fraction is a regression.
 THRESHOLD = 0.10
+#: The environment variable naming the tree a run must time (benchmarks/conftest.py).
+TREE_VARIABLE = "STT_DRAKE_BENCH_TREE"
 
 
 Timing = tuple[float, float]  # (minimum, median) of a row's rounds, seconds
 
 
-def _timed_rows(output: Path, env: dict[str, str]) -> dict[str, Timing] | None:
-    """Run the rows with `env`; each row's (minimum, median) by name, None if it failed."""
+def _timed_rows(output: Path, tree: Path) -> dict[str, Timing] | None:
+    """Run the rows of `tree`/benchmarks from `tree`, timing the stt_drake of `tree`; each
+    row's (minimum, median) by name, None if it failed."""
+    env = {key: value for key, value in os.environ.items() if key != "PYTHONPATH"}
+    env |= {"PYTHONPATH": str(tree), TREE_VARIABLE: str(tree)}
     command = [
-        sys.executable, "-m", "pytest", str(ROOT / "benchmarks"), "-q", "-p", "no:cacheprovider",
+        sys.executable, "-m", "pytest", str(tree / "benchmarks"), "-q", "-p", "no:cacheprovider",
         "-p", "no:xdist", f"--benchmark-json={output}", "--benchmark-columns=min,median,rounds",
     ]  # fmt: skip
-    if subprocess.run(command, cwd=ROOT, env=env, check=False).returncode != 0:
+    if subprocess.run(command, cwd=tree, env=env, check=False).returncode != 0:
         return None
     rows = json.loads(output.read_text())["benchmarks"]
     return {row["fullname"]: (row["stats"]["min"], row["stats"]["median"]) for row in rows}
@@ -66,13 +76,11 @@ def main(argv: list[str]) -> int:
             print(f"bench-compare: {reference_name}: {archive.stderr.decode().strip()}")
             return 2
         subprocess.run(["tar", "-x", "-C", str(base)], input=archive.stdout, check=True)
+        shutil.copytree(ROOT / "benchmarks", base / "benchmarks", dirs_exist_ok=True)
         print(f"bench-compare: timing {reference_name}", flush=True)
-        reference = _timed_rows(
-            Path(folder) / "reference.json", {**os.environ, "PYTHONPATH": str(base)}
-        )
+        reference = _timed_rows(Path(folder) / "reference.json", base)
         print("bench-compare: timing the working tree", flush=True)
-        env = {key: value for key, value in os.environ.items() if key != "PYTHONPATH"}
-        working = _timed_rows(Path(folder) / "working.json", env)
+        working = _timed_rows(Path(folder) / "working.json", ROOT)
     if reference is None or working is None:
         print("bench-compare: a run of the rows failed (its output is above)")
         return 2

@@ -141,6 +141,7 @@ class SpatiotemporalTube(LeafSystem):
         # (TubeEvaluation, [c, r] with the law's exact radius); the last one memoised
         # (stt_drake.systems.memo: a step's first stage repeats the monitor's evaluation).
         self._last_evaluation = LastResult()
+        self._last_target_law = LastResult()
         self._evaluation = self._declare_cache(
             "tube law evaluation",
             self._calc_evaluation,
@@ -215,7 +216,13 @@ class SpatiotemporalTube(LeafSystem):
         return self._target_law.Eval(context)
 
     def _calc_target_law(self, context: Context, value: AbstractValue) -> None:
-        value.set_value(self._law.with_target(self._target_port.Eval(context)))
+        # The same target gives the same law object (with its looked-up kernel, gains and
+        # constants): this entry is recomputed at every step, the target rarely changes.
+        target = self._target_port.Eval(context)
+        key, law = self._last_target_law.lookup(target)
+        if law is None:
+            law = self._last_target_law.store(key, self._law.with_target(target))
+        value.set_value(law)
 
     def _calc_evaluation(self, context: Context, value: AbstractValue) -> None:
         center = self.center(context)

@@ -34,3 +34,33 @@ def test_noise_in_one_statistic_alone_is_not_a_regression():
 
 def test_no_common_row_is_no_regression():
     assert regressions({"a": (1.0, 1.0)}, {"b": (100.0, 100.0)}) == []
+
+
+def test_each_run_times_the_tree_it_is_asked_to(tmp_path):
+    """The reference run imports the exported tree, not the working tree it was started
+    from (the comparison once timed the working tree twice): a tree whose stt_drake is a
+    stub that cannot be imported fails its run, and a run asked to time a tree it does not
+    import stops with exit code 2."""
+    import os
+    import subprocess
+    import sys
+
+    from benchmarks.compare_with_main import ROOT, TREE_VARIABLE, _timed_rows
+
+    stub = tmp_path / "stub"
+    (stub / "stt_drake").mkdir(parents=True)
+    (stub / "stt_drake" / "__init__.py").write_text("raise ImportError('the stub tree')\n")
+    (stub / "benchmarks").mkdir()
+    for name in ("__init__.py", "conftest.py"):
+        (stub / "benchmarks" / name).write_text((ROOT / "benchmarks" / name).read_text())
+    assert _timed_rows(tmp_path / "out.json", stub) is None  # it imported the stub: failed
+
+    env = {**os.environ, TREE_VARIABLE: str(stub)}
+    env.pop("PYTHONPATH", None)
+    checked = subprocess.run(
+        [sys.executable, "-m", "pytest", str(ROOT / "benchmarks"), "--collect-only", "-q",
+         "-p", "no:cacheprovider", "-p", "no:xdist"],
+        cwd=ROOT, env=env, capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert checked.returncode == 2
+    assert f"asked to time {stub}" in checked.stdout + checked.stderr
