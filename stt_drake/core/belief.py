@@ -331,13 +331,12 @@ class PortBelief(ObstacleBelief):
         vector = np.asarray(vector, dtype=float)
         check_vector_length(vector.size, dimension)
         _check_slot_count(vector.size // record_size(dimension), task)
-        for name, value in (
-            ("vector", vector),
-            ("slot_task", task),
-            ("full_covariance", bool(full_covariance)),
-            ("_dimension", dimension),
-        ):
-            object.__setattr__(self, name, value)  # frozen, as every ObstacleBelief
+        # frozen, as every ObstacleBelief: the fields set once, in one step (a tube
+        # evaluation makes one of these)
+        self.__dict__.update(
+            vector=vector, slot_task=task, full_covariance=bool(full_covariance),
+            _dimension=dimension,
+        )  # fmt: skip
 
     @property
     def dimension(self) -> int:
