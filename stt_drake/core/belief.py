@@ -283,12 +283,12 @@ class CovarianceBelief(ObstacleBelief):
         covariance: np.ndarray,
         sigma: np.ndarray | None = None,
     ) -> None:
-        fields = {"mean": mean, "radius": radius, "epsilon": epsilon, "p_d": p_d}
-        fields["covariance"] = covariance
+        # frozen, as every ObstacleBelief: the fields set once, in one step
+        self.__dict__.update(
+            mean=mean, radius=radius, epsilon=epsilon, p_d=p_d, covariance=covariance
+        )
         if sigma is not None:  # given (dataclasses.replace passes every field)
-            fields["sigma"] = sigma
-        for name, value in fields.items():
-            object.__setattr__(self, name, value)  # frozen, as every ObstacleBelief
+            self.__dict__["sigma"] = sigma
 
     @cached_property
     def sigma(self) -> np.ndarray:  # type: ignore[override]
@@ -334,9 +334,11 @@ class PortBelief(ObstacleBelief):
         # frozen, as every ObstacleBelief: the fields set once, in one step (a tube
         # evaluation makes one of these)
         self.__dict__.update(
-            vector=vector, slot_task=task, full_covariance=bool(full_covariance),
+            vector=vector,
+            slot_task=task,
+            full_covariance=bool(full_covariance),
             _dimension=dimension,
-        )  # fmt: skip
+        )
 
     @property
     def dimension(self) -> int:

@@ -165,12 +165,17 @@ def _anisotropic_probabilities(
         anisotropic.MAX_CONDITION,
     )
     for j in np.flatnonzero(~valid):
-        try:
-            anisotropic.eigen_decomposition(belief.covariance[j])
-        except ValueError as error:
-            raise ValueError(f"obstacle {j}: {error}") from None
+        _decomposed(belief.covariance, j)  # raises the rule Σ_j breaks
         raise ValueError(f"obstacle {j}: covariance is not a valid Σ (numerically singular)")
     return q[:, 0], q[:, 1], q[:, 2]
+
+
+def _decomposed(covariance: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`stt_drake.core.anisotropic.eigen_decomposition` of Σ_j, its error naming j."""
+    try:
+        return anisotropic.eigen_decomposition(covariance[j])
+    except ValueError as error:
+        raise ValueError(f"obstacle {j}: {error}") from None
 
 
 def _anisotropic_reference(
@@ -183,10 +188,7 @@ def _anisotropic_reference(
     center = np.asarray(center, dtype=float)
     output = np.asarray(output, dtype=float)
     for j in range(count):
-        try:
-            variances, axes = anisotropic.eigen_decomposition(belief.covariance[j])
-        except ValueError as error:
-            raise ValueError(f"obstacle {j}: {error}") from None
+        variances, axes = _decomposed(belief.covariance, j)
         at_center = ((center - belief.mean[j]) @ axes)[None, :]
         at_output = ((output - belief.mean[j]) @ axes)[None, :]
         r_o = float(belief.radius[j])
