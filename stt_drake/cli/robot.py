@@ -24,7 +24,8 @@ def _scenario(args: argparse.Namespace) -> tuple[Scenario, Path]:
     """The scenario and out folder, with ``--lcm-url`` in its `lcm:` section, which must
     be valid (a bad value is bad input, exit 2)."""
     from stt_drake.config import ScenarioError
-    from stt_drake.config.lcm import LcmConfig, validate_lcm
+    from stt_drake.config.lcm import LcmConfig
+    from stt_drake.config.validate_lcm import validate_lcm
 
     scenario, out_dir = load_scenario_arguments(args)
     config = scenario.lcm or LcmConfig()

@@ -30,7 +30,6 @@ from stt_drake.config.covariance import (
     require_covariances,
     require_sigma,
 )
-from stt_drake.config.lcm import validate_lcm
 from stt_drake.config.limits import check_limits, require, rule_path
 from stt_drake.config.schema import (
     PLANT_DIMENSION,
@@ -45,6 +44,7 @@ from stt_drake.config.schema import (
 )
 from stt_drake.config.validate_crowd import validate_crowd
 from stt_drake.config.validate_guide import validate_guide
+from stt_drake.config.validate_lcm import validate_lcm
 from stt_drake.config.validate_perception import validate_perception
 from stt_drake.core.belief import axes_covariance, has_full_covariance
 from stt_drake.core.motion import (

@@ -28,7 +28,8 @@ from pydrake.systems.primitives import Multiplexer
 from stt_drake.assembly.checks import initial_stage_states
 from stt_drake.assembly.diagram import PLANT_BUILDERS, PlantHandles, add_arm_controller
 from stt_drake.config import FrankaArm, OmniRobot, Quadrotor, Scenario
-from stt_drake.config.lcm import LcmConfig, validate_lcm
+from stt_drake.config.lcm import LcmConfig
+from stt_drake.config.validate_lcm import validate_lcm
 from stt_drake.core.arm import ArmLimits
 from stt_drake.robot.halves import (
     PANDA_MODE,

@@ -17,7 +17,8 @@ from pydrake.systems.framework import DiagramBuilder
 
 from stt_drake.assembly.diagram import add_loggers
 from stt_drake.config import Scenario
-from stt_drake.config.lcm import LcmConfig, validate_lcm
+from stt_drake.config.lcm import LcmConfig
+from stt_drake.config.validate_lcm import validate_lcm
 from stt_drake.robot.halves import (
     STARTUP_TIMEOUT,
     Link,

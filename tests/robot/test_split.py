@@ -17,7 +17,8 @@ from pydrake.systems.primitives import ConstantVectorSource
 from stt_drake.assembly import load_scenario
 from stt_drake.assembly.perception import add_obstacle_sensing
 from stt_drake.config import ScenarioError
-from stt_drake.config.lcm import LcmConfig, validate_lcm
+from stt_drake.config.lcm import LcmConfig
+from stt_drake.config.validate_lcm import validate_lcm
 from stt_drake.core.motion import MotionTable
 from stt_drake.robot.remote import remote_scenario
 from stt_drake.robot.session import simulate_split
