@@ -30,6 +30,7 @@ from stt_drake.core.motion import Recorded, Waypoints
 from stt_drake.crowd.engine import CrowdUnavailableError, load_jupedsim
 from stt_drake.crowd.scenes import CrowdSetup, make_scene
 from stt_drake.crowd.tracks import Tracks, run_tracks
+from stt_drake.diagrams import scenario_file
 
 
 def crowd_setup(scenario: Scenario) -> CrowdSetup:
@@ -127,7 +128,10 @@ def with_crowd(schema: Scenario, seed: int | None = None) -> Scenario:
 
 
 def load_scenario(path: str | Path, seed: int | None = None, strict: bool = False) -> Scenario:
-    """Load, expand and validate a scenario file; raises ScenarioError on any bad input.
+    """Load, expand and validate a scenario file, or a packaged scenario by name
+    (``load_scenario("omni_hardware_case1")``, :func:`stt_drake.diagrams.scenario_file`: an
+    existing file wins); raises ScenarioError on any bad input, for an unknown name with
+    the packaged names closest to it.
 
     `seed`, when given, replaces the file's `seed` before anything random is drawn, so a
     run is reproduced from (file, seed) alone. `strict` (``stt-drake run --strict``) makes
@@ -135,7 +139,10 @@ def load_scenario(path: str | Path, seed: int | None = None, strict: bool = Fals
     theorem that the run would otherwise record is refused
     (:func:`stt_drake.config.assumptions.check_target_separation`).
     """
-    path = Path(path)
+    try:
+        path = scenario_file(path)
+    except FileNotFoundError as error:
+        raise ScenarioError(str(error)) from None
     schema = parse_schema(read_scenario_file(path), default_name=path.stem, base=path.parent)
     scenario = complete_scenario(with_crowd(schema, seed), seed)
     if strict:

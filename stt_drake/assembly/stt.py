@@ -23,11 +23,11 @@ from stt_drake.core.belief import (
 )
 from stt_drake.core.control import FunnelController
 from stt_drake.core.motion import MotionTable
+from stt_drake.core.obstacle import check_obstacle
 from stt_drake.core.rules import (
     NU_HINT,
     check_initial_avoidance,
     check_nu_for_count,
-    check_obstacles,
     checked_by,
 )
 from stt_drake.core.tube import BeliefRateBounds, TubeLaw
@@ -105,7 +105,9 @@ def AddStt(  # noqa: N802 (Drake's naming of builder functions)
     Raises:
         ValueError: (a :class:`stt_drake.core.rules.RuleError`) before anything is added,
             naming the argument and the rule a scenario file is checked against: an
-            obstacle's task numbers (``AddStt: obstacles[2].epsilon must lie in (0, 1]``),
+            obstacle's rules in R^n (:func:`stt_drake.core.obstacle.check_obstacle`: its
+            motion's dimension, σ, task numbers, e.g. ``AddStt: obstacles[2].epsilon must
+            lie in (0, 1]``),
             ν against the obstacle count (``law.nu``), and, with `obstacles`, the initial
             avoidance condition q_j(s, 0) > ε_j at `start` (Definition 2.3).
     """
@@ -115,9 +117,9 @@ def AddStt(  # noqa: N802 (Drake's naming of builder functions)
     n = start.shape[0]
     if obstacles is None and task is None:
         raise ValueError("AddStt: a `belief` port needs the obstacles' `task` (r_o, ε, p_d)")
-    if obstacles is not None:
-        with checked_by("AddStt"):
-            check_obstacles(obstacles)
+    for j, obstacle in enumerate(obstacles or ()):  # a scenario file's rules, with n
+        with checked_by("AddStt", f"obstacles[{j}]"):
+            check_obstacle(obstacle, n)
     with checked_by("AddStt", "law", NU_HINT):
         check_nu_for_count(law.nu, law.r_min, task.count if obstacles is None else len(obstacles))
     if obstacles is not None:

@@ -4,6 +4,7 @@ measured against (:func:`baseline_tube_step`, the authors' per-obstacle scipy lo
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -59,6 +60,7 @@ def obstacle_field(
         r_min=r_min,
         r_max=spec["r_max"],
         nu=default_nu(count, r_min),
+        max_center_speed=math.inf,  # the paper's law: no boundary layer
     )
     center = np.zeros(dimension)
     side = spec["side"] * (count / spec["count"]) ** (1.0 / dimension)

@@ -1,4 +1,6 @@
 """The scenario schema: the dataclasses one YAML file is loaded into (``diagrams/*.yaml``).
+An obstacle is the core's :class:`stt_drake.core.obstacle.Obstacle` (the type the Python API
+builds obstacles with), re-exported here.
 
 Loaded by :mod:`stt_drake.config.load` with ``pydrake.common.yaml.yaml_load_typed`` and
 checked by :mod:`stt_drake.config.validate`; the rules that need the built laws or the
@@ -15,7 +17,7 @@ from pydrake.systems.analysis import SimulatorConfig
 from stt_drake.config.lcm import LcmConfig
 from stt_drake.core.belief import ObstacleBelief, obstacle_belief
 from stt_drake.core.consistency import Adaptation, density_bounds
-from stt_drake.core.motion import ConstantVelocity, CovarianceSchedule, Motion, SigmaSchedule
+from stt_drake.core.obstacle import Obstacle
 from stt_drake.core.tube import default_nu
 
 
@@ -41,43 +43,6 @@ class AssumptionError(ScenarioError):
     (random obstacles that cannot be placed clear of start and target, an initial
     avoidance condition q_j(s, 0) > ε_j that fails): a randomisation campaign counts such a
     draw as rejected, not as a failure."""
-
-
-@dataclass
-class Obstacle:
-    """One uncertain obstacle (Definition 2.1): a ball of `radius` around a Gaussian centre.
-
-    The centre's uncertainty is given in one of these forms:
-
-    * `sigma`: the standard deviation of the centre per axis in metres (σ, not σ²),
-      Σ = σ²I; `sigma_schedule`, when given, replaces it with a piecewise-linear σ(t);
-    * `covariance`: a full covariance Σ (n×n, m², symmetric positive definite), a list of
-      n rows;
-    * `axes_sigma`: n standard deviations (m) along the principal axes, turned by
-      `rotation` (rad; 2D: ``[angle]``, 3D: ``[roll, pitch, yaw]`` with Drake's RollPitchYaw
-      R = Rz(yaw)·Ry(pitch)·Rx(roll); none: no rotation): Σ = R diag(axes_sigma²) Rᵀ;
-    * `covariance_schedule`: a piecewise-linear Σ(t) (:class:`CovarianceSchedule`).
-
-    With a full covariance the tube law uses Σ exactly and the belief's sigma is
-    √λ_max(Σ) (:func:`stt_drake.core.belief.obstacle_belief`).
-
-    A scenario file must give one of these forms (sigma may come with a sigma_schedule,
-    which replaces it; nothing else may be combined), `epsilon` and `p_d`: a safety tool
-    does not invent an uncertainty or a risk level (the loader refuses a file without
-    them, :mod:`stt_drake.config.load`). The defaults here only serve Drake's loader and
-    code that builds obstacles itself.
-    """
-
-    motion: Motion = field(default_factory=ConstantVelocity)
-    radius: float = 0.15
-    sigma: float = 0.1
-    sigma_schedule: SigmaSchedule | None = None
-    covariance: list[list[float]] | None = None
-    axes_sigma: list[float] | None = None
-    rotation: list[float] | None = None
-    covariance_schedule: CovarianceSchedule | None = None
-    epsilon: float = 0.9
-    p_d: float = 0.9999
 
 
 @dataclass
@@ -406,7 +371,9 @@ class CrowdConfig:
     period: float = 0.05
 
 
-def _default_simulator_config() -> SimulatorConfig:
+def default_simulator_config() -> SimulatorConfig:
+    """A scenario run's SimulatorConfig when its file gives none: runge_kutta3 with error
+    control, accuracy 1e-6, steps of at most 0.01 s."""
     return SimulatorConfig(
         integration_scheme="runge_kutta3",
         max_step_size=0.01,
@@ -434,7 +401,7 @@ class Scenario:
     tube: TubeConfig = field(default_factory=TubeConfig)
     controller: ControllerConfig = field(default_factory=ControllerConfig)
     plant: Plant = field(default_factory=OmniRobot)
-    simulator: SimulatorConfig = field(default_factory=_default_simulator_config)
+    simulator: SimulatorConfig = field(default_factory=default_simulator_config)
     log_period: float = 0.02
     strict: bool = False
     max_steps_per_second: float = 0.0

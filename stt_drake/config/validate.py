@@ -13,9 +13,11 @@ naming the full field path and the rule (:func:`require`, from
 
 The rules of the core objects — the tube constants, ν against the obstacle count, an
 obstacle's r_o, ε, p_d, the controller's gains and funnels, the initial avoidance condition
-— are not written here: they are :mod:`stt_drake.core.rules`, which the constructors of
-TubeLaw, ObstacleTask, BoxFunnel, FunnelController, SpatiotemporalTube and AddStt check
-too, called through :func:`stt_drake.config.limits.rule_path` with the file's field path.
+— are not written here: they are :mod:`stt_drake.core.rules` (an obstacle's, with its
+motion and uncertainty: :func:`stt_drake.core.obstacle.check_obstacle`), which the
+constructors of TubeLaw, Obstacle, the motion models, ObstacleTask, BoxFunnel,
+FunnelController, SpatiotemporalTube and AddStt check too, called through
+:func:`stt_drake.config.limits.rule_path` with the file's field path.
 """
 
 import dataclasses
@@ -25,11 +27,6 @@ import re
 import numpy as np
 
 from stt_drake.config.assumptions import check_target_separation
-from stt_drake.config.covariance import (
-    require_covariance,
-    require_covariances,
-    require_sigma,
-)
 from stt_drake.config.limits import check_limits, require, rule_path
 from stt_drake.config.schema import (
     PLANT_DIMENSION,
@@ -40,21 +37,16 @@ from stt_drake.config.schema import (
     OmniRobot,
     Quadrotor,
     Scenario,
-    ScenarioError,
 )
 from stt_drake.config.validate_crowd import validate_crowd
 from stt_drake.config.validate_guide import validate_guide
 from stt_drake.config.validate_lcm import validate_lcm
 from stt_drake.config.validate_perception import validate_perception
-from stt_drake.core.belief import axes_covariance, has_full_covariance
-from stt_drake.core.motion import (
-    ConstantVelocity,
-    Motion,
-    MotionTable,
-    Oscillation,
-    Recorded,
-    Waypoints,
-)
+from stt_drake.core.belief import has_full_covariance
+from stt_drake.core.motion import MotionTable, Recorded
+from stt_drake.core.obstacle import UNCERTAINTY_FIELDS as UNCERTAINTY_FIELDS  # the loader's
+from stt_drake.core.obstacle import check_obstacle
+from stt_drake.core.obstacle import check_one_uncertainty as core_check_one_uncertainty
 from stt_drake.core.rules import (
     check_box_funnel,
     check_center_speed,
@@ -63,16 +55,13 @@ from stt_drake.core.rules import (
     check_kappa,
     check_nu,
     check_nu_for_count,
-    check_obstacle_task,
     check_tube_constants,
+    check_vector,
 )
 
 #: Fastest fixed-rate tube update (Hz): a real-time rate; faster is continuous time (0).
 MAX_UPDATE_RATE_HZ = 1e4
 
-#: The forms of an obstacle centre's uncertainty (:class:`stt_drake.config.schema.Obstacle`):
-#: an obstacle gives one of them; sigma may come with sigma_schedule, which replaces it.
-UNCERTAINTY_FIELDS = ("sigma", "sigma_schedule", "covariance", "axes_sigma", "covariance_schedule")
 
 #: What a scenario name may hold: it names the results folder, results/<name>/.
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_.-]{1,100}")
@@ -98,67 +87,22 @@ def validate_name(name: str) -> None:
 
 
 def check_one_uncertainty(given: list[str], path: str) -> None:
-    """Of the uncertainty forms `given` (names of :data:`UNCERTAINTY_FIELDS`, in that order)
-    at most one, sigma with sigma_schedule counting as one: ScenarioError naming both
-    fields of the first pair that breaks it."""
-    for k, second in enumerate(given):
-        for first in given[:k]:
-            if {first, second} != {"sigma", "sigma_schedule"}:
-                raise ScenarioError(
-                    f"{path}.{second}: {first} and {second} are both given: give only one of "
-                    f"{', '.join(UNCERTAINTY_FIELDS)} (one description of the centre's "
-                    "uncertainty; sigma may come with sigma_schedule, which replaces it)"
-                )
+    """Of the uncertainty forms `given` at `path` at most one
+    (:func:`stt_drake.core.obstacle.check_one_uncertainty`)."""
+    with rule_path(path):
+        core_check_one_uncertainty(given)
 
 
 def require_vector(value: list[float], length: int, path: str) -> None:
-    """`value` has `length` finite entries."""
-    require(len(value) == length, path, f"must have {length} entries", value)
-    require(all(math.isfinite(v) for v in value), path, "must be finite", value)
+    """`value` has `length` finite entries (:func:`stt_drake.core.rules.check_vector`)."""
+    with rule_path(path):
+        check_vector(value, "", length)
 
 
 def require_range(value: list[float], path: str, low: float, high: float) -> None:
     """`value` is an interval [a, b] inside [low, high]."""
     require(len(value) == 2 and value[0] <= value[1], path, "must be [low, high]", value)
     require(low <= value[0] and value[1] <= high, path, f"must lie in [{low}, {high}]", value)
-
-
-def _require_step_times(times: list[float], path: str) -> None:
-    """Times of a piecewise-linear model: finite, non-decreasing, each at most twice (a
-    repeated time is a step, see :mod:`stt_drake.core.motion`)."""
-    require(all(math.isfinite(t) for t in times), path, "must be finite", times)
-    steps = np.diff(np.asarray(times, dtype=float))
-    require(
-        bool(np.all(steps >= 0.0)) and not bool(np.any((steps[1:] == 0.0) & (steps[:-1] == 0.0))),
-        path,
-        "must increase (a time may be repeated once: a step)",
-        times,
-    )
-
-
-def _validate_motion(motion: Motion, n: int, path: str) -> None:
-    if isinstance(motion, ConstantVelocity):
-        require_vector(motion.start, n, f"{path}.start")
-        require_vector(motion.velocity, n, f"{path}.velocity")
-    elif isinstance(motion, Oscillation):
-        require_vector(motion.center, n, f"{path}.center")
-        require_vector(motion.amplitude, n, f"{path}.amplitude")
-        if motion.phase:
-            require_vector(motion.phase, n, f"{path}.phase")
-        require(
-            motion.frequency_hz >= 0.0, f"{path}.frequency_hz", "must be ≥ 0", motion.frequency_hz
-        )
-    elif isinstance(motion, Waypoints):
-        require(len(motion.times) >= 1, f"{path}.times", "needs at least one time", motion.times)
-        require(
-            len(motion.positions) == len(motion.times),
-            f"{path}.positions",
-            "needs one position per time",
-            motion.positions,
-        )
-        _require_step_times(motion.times, f"{path}.times")
-        for i, position in enumerate(motion.positions):
-            require_vector(position, n, f"{path}.positions[{i}]")
 
 
 def _validate_recorded_span(motion: Recorded, scenario: Scenario, path: str) -> None:
@@ -214,87 +158,10 @@ def _validate_recorded_overlap(scenario: Scenario) -> None:
 
 
 def _validate_obstacle(obstacle: Obstacle, n: int, path: str) -> None:
-    _validate_motion(obstacle.motion, n, f"{path}.motion")
-    require(
-        obstacle.sigma > 0.0,
-        f"{path}.sigma",
-        "must be > 0 (a standard deviation in metres)",
-        obstacle.sigma,
-    )
-    require_sigma(obstacle.sigma, f"{path}.sigma")
-    if obstacle.sigma_schedule is not None:
-        schedule = obstacle.sigma_schedule
-        require(
-            len(schedule.times) >= 1 and len(schedule.times) == len(schedule.values),
-            f"{path}.sigma_schedule",
-            "needs as many values as times (≥ 1)",
-            schedule,
-        )
-        _require_step_times(schedule.times, f"{path}.sigma_schedule.times")
-        require(
-            all(v > 0.0 for v in schedule.values),
-            f"{path}.sigma_schedule.values",
-            "must all be > 0 (standard deviations in metres)",
-            schedule.values,
-        )
-        for k, value in enumerate(schedule.values):
-            require_sigma(value, f"{path}.sigma_schedule.values[{k}]")
-    _validate_full_covariance(obstacle, n, path)
-    with rule_path(path):  # r_o > 0, ε ∈ (0, 1], p_d ∈ (ε, 1): the ObstacleTask's rules
-        check_obstacle_task(obstacle.radius, obstacle.epsilon, obstacle.p_d)
-
-
-def _validate_full_covariance(obstacle: Obstacle, n: int, path: str) -> None:
-    """The full-covariance forms of an obstacle: one at most (with no σ schedule), each a
-    valid covariance (:func:`require_covariance`); `rotation` only with `axes_sigma`."""
-    given = [name for name in UNCERTAINTY_FIELDS[1:] if getattr(obstacle, name) is not None]
-    check_one_uncertainty(given, path)
-    if obstacle.covariance is not None:
-        require_covariance(obstacle.covariance, n, f"{path}.covariance")
-    require(
-        obstacle.rotation is None or obstacle.axes_sigma is not None,
-        f"{path}.rotation",
-        "turns the principal axes of axes_sigma: give it with axes_sigma only",
-        obstacle.rotation,
-    )
-    if obstacle.axes_sigma is not None:
-        axes = obstacle.axes_sigma
-        require_vector(axes, n, f"{path}.axes_sigma")
-        for k, value in enumerate(axes):
-            require(
-                value > 0.0,
-                f"{path}.axes_sigma[{k}]",
-                "must be > 0 (a standard deviation in metres)",
-                value,
-            )
-            require_sigma(value, f"{path}.axes_sigma[{k}]")
-        rotation = obstacle.rotation
-        if rotation is not None:
-            angles = "1 entry in 2D: [angle]" if n == 2 else "3 entries in 3D: [roll, pitch, yaw]"
-            require(
-                len(rotation) == (1 if n == 2 else 3),
-                f"{path}.rotation",
-                f"must have {angles} (rad)",
-                rotation,
-            )
-            require(
-                all(math.isfinite(a) for a in rotation),
-                f"{path}.rotation",
-                "must be finite",
-                rotation,
-            )
-        require_covariance(axes_covariance(axes, rotation, n).tolist(), n, f"{path}.axes_sigma")
-    schedule = obstacle.covariance_schedule
-    if schedule is not None:
-        where = f"{path}.covariance_schedule"
-        require(
-            len(schedule.times) >= 1 and len(schedule.times) == len(schedule.covariances),
-            where,
-            "needs as many covariances as times (≥ 1)",
-            schedule,
-        )
-        _require_step_times(schedule.times, f"{where}.times")
-        require_covariances(schedule.covariances, n, f"{where}.covariances")
+    """Every rule of one obstacle (:func:`stt_drake.core.obstacle.check_obstacle`, which
+    its constructor checks too)."""
+    with rule_path(path):
+        check_obstacle(obstacle, n)
 
 
 def _validate_controller(config: ControllerConfig, n: int, stages: int) -> None:

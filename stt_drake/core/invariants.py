@@ -1,4 +1,4 @@
-"""The guarantees every run checks (README, "The guarantees every run checks").
+"""The guarantees every run checks (docs/guide/guarantees.md).
 
 Pure numpy. A *margin* is positive when a guarantee holds with room to spare:
 
@@ -27,6 +27,8 @@ from stt_drake.core import anisotropic, backend
 from stt_drake.core.belief import ObstacleBelief
 from stt_drake.core.probability import avoid_probability
 
+#: The guarantees, in the order of the invariant monitor's `margins` port and of
+#: :meth:`InvariantTracker.update`'s margins (each margin is in the table above).
 INVARIANT_NAMES = (
     "output_in_tube",
     "center_avoid_probability",

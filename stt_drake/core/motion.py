@@ -23,6 +23,8 @@ from typing import Union
 
 import numpy as np
 
+from stt_drake.core.rules import check_finite, check_step_times, check_vector, checked_by, require
+
 
 def constant_velocity_positions(start: np.ndarray, velocity: np.ndarray, t: float) -> np.ndarray:
     """μ(t) = start + velocity·t, for one model (n,) or stacked rows (m, n)."""
@@ -48,6 +50,10 @@ class ConstantVelocity:
     start: list[float] = field(default_factory=list)
     velocity: list[float] = field(default_factory=list)
 
+    def __post_init__(self) -> None:
+        with checked_by("ConstantVelocity"):
+            check_motion(self)
+
     def position(self, t: float) -> np.ndarray:
         return constant_velocity_positions(
             np.asarray(self.start, dtype=float), np.asarray(self.velocity, dtype=float), t
@@ -66,6 +72,10 @@ class Oscillation:
     amplitude: list[float] = field(default_factory=list)
     frequency_hz: float = 0.1
     phase: list[float] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        with checked_by("Oscillation"):
+            check_motion(self)
 
     def position(self, t: float) -> np.ndarray:
         phase = np.asarray(self.phase, dtype=float) if self.phase else 0.0
@@ -88,6 +98,10 @@ class Waypoints:
 
     times: list[float] = field(default_factory=list)
     positions: list[list[float]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        with checked_by("Waypoints"):
+            check_motion(self)
 
     def position(self, t: float) -> np.ndarray:
         positions = np.asarray(self.positions, dtype=float)
@@ -187,6 +201,45 @@ class Recorded:
 
 
 Motion = Union[ConstantVelocity, Oscillation, Waypoints, Recorded]  # noqa: UP007 (drake yaml needs typing.Union)
+
+
+def check_motion(motion: Motion, dimension: int | None = None) -> None:
+    """The rules of a motion model in R^n, `dimension` = n: every vector n finite entries,
+    frequency_hz ≥ 0, waypoint times non-decreasing with one position each (a scenario
+    file's rules, :mod:`stt_drake.config.validate`; a :class:`Recorded` track is checked
+    when read, :mod:`stt_drake.config.tracks`).
+
+    The models' constructors check them with n = the length of the first vector
+    (``ConstantVelocity(start=[0, 0], velocity=[1])`` is refused: ``velocity must have 2
+    entries``); a model made without arguments is the blank a scenario file's loader fills
+    in, checked once n is known (:func:`stt_drake.core.obstacle.check_obstacle`). A broken
+    rule raises :class:`stt_drake.core.rules.RuleError` naming the field."""
+    if isinstance(motion, ConstantVelocity):
+        n = len(motion.start) if dimension is None else dimension
+        check_vector(motion.start, "start", n)
+        check_vector(motion.velocity, "velocity", n)
+    elif isinstance(motion, Oscillation):
+        n = len(motion.center) if dimension is None else dimension
+        check_vector(motion.center, "center", n)
+        check_vector(motion.amplitude, "amplitude", n)
+        if motion.phase:
+            check_vector(motion.phase, "phase", n)
+        check_finite(motion.frequency_hz, "frequency_hz")
+        require(motion.frequency_hz >= 0.0, "frequency_hz", "must be ≥ 0", motion.frequency_hz)
+    elif isinstance(motion, Waypoints):
+        if dimension is None and not motion.times and not motion.positions:
+            return  # the loader's blank
+        require(len(motion.times) >= 1, "times", "needs at least one time", motion.times)
+        require(
+            len(motion.positions) == len(motion.times),
+            "positions",
+            "needs one position per time",
+            motion.positions,
+        )
+        check_step_times(motion.times, "times")
+        n = len(motion.positions[0]) if dimension is None else dimension
+        for i, position in enumerate(motion.positions):
+            check_vector(position, f"positions[{i}]", n)
 
 
 class MotionTable:

@@ -166,6 +166,25 @@ def check_finite(value: Any, field: str) -> np.ndarray:
     return values
 
 
+def check_vector(value: Sequence[float], field: str, length: int) -> None:
+    """`value` has `length` entries, all finite (a point or a velocity in R^n)."""
+    require(len(value) == length, field, f"must have {length} entries", value)
+    require(all(math.isfinite(v) for v in value), field, "must be finite", value)
+
+
+def check_step_times(times: Sequence[float], field: str) -> None:
+    """Times (s) of a piecewise-linear model: finite, non-decreasing, each at most twice (a
+    repeated time is a step, see :mod:`stt_drake.core.motion`)."""
+    require(all(math.isfinite(t) for t in times), field, "must be finite", times)
+    steps = np.diff(np.asarray(times, dtype=float))
+    require(
+        bool(np.all(steps >= 0.0)) and not bool(np.any((steps[1:] == 0.0) & (steps[:-1] == 0.0))),
+        field,
+        "must increase (a time may be repeated once: a step)",
+        times,
+    )
+
+
 def _check_each(value: Any, field: str, good: np.ndarray, rule: str) -> None:
     """`good` per entry of `value` (a scalar or an array): the first bad entry is named
     ``field[j]`` in an array, ``field`` for a scalar."""

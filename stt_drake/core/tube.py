@@ -4,7 +4,8 @@ One call of :meth:`TubeLaw.evaluate` gives, for the tube centre c and the belief
 obstacles, the centre velocity ċ of Eq. (4), the radius r of Eq. (14) and
 per-obstacle diagnostics (q_j, d̂_j, θ_j).
 
-Fixes to the printed paper (README, "Design decisions"):
+Fixes to the printed paper (docs/design.md, "Where the paper is silent or is read
+differently"):
 * the attraction term is the signed cube root per component, k1·sign(η − c)|η − c|^{1/3};
 * the radius is the log-sum-exp soft-min r = −(1/ν) ln(e^{−ν r_max} + Σ_j e^{−ν d̂_j}),
   which is always ≤ min(r_max, min_j d̂_j); it stays > 0 only if ν > ln(n_o + 1)/r_min.
@@ -53,9 +54,8 @@ the compiled kernels or that reference (:meth:`TubeLaw.evaluate`).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from functools import cached_property
 
 import numpy as np
@@ -133,8 +133,11 @@ class TubeLaw:
         r_max: largest tube radius (> r_min).
         nu: soft-min sharpness; must exceed ln(n_o + 1)/r_min for Theorem 3.2 (iii).
         linear_zone: δ of :func:`signed_cube_root_attraction` (metres; 0 = exact cube root).
-        max_center_speed: v_c, the bound on |ċ| and the recovery speed (m/s). Infinite
-            means unbounded: no boundary layer (the paper's law above every ε level set),
+        max_center_speed: v_c, the bound on |ċ| and the recovery speed (m/s). A required
+            keyword, as in a scenario file: a finite v_c is what lets the tube recover
+            after a belief jump ("Bounded centre, boundary layer and recovery" above), so
+            it is never switched off silently. ``math.inf`` must be given explicitly: it
+            means unbounded, no boundary layer (the paper's law above every ε level set),
             and a recovery has no finite speed, so its ċ is not finite (the Drake system
             stops the run and says so).
 
@@ -150,7 +153,7 @@ class TubeLaw:
     r_max: float
     nu: float
     linear_zone: float = 0.0
-    max_center_speed: float = math.inf
+    max_center_speed: float = field(kw_only=True)
 
     def __post_init__(self) -> None:
         with checked_by("TubeLaw"):

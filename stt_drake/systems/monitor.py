@@ -218,14 +218,21 @@ class InvariantMonitor(LeafSystem):
         self,
         simulator: Simulator,
         tracker: InvariantTracker,
-        strict: bool,
+        strict: bool = False,
         watchdog: StepRateWatchdog | None = None,
         recoveries: RecoveryTracker | None = None,
         progress: Callable[[float, InvariantTracker], None] | None = None,
+        *,
+        also: Callable[[Context], EventStatus] | None = None,
     ) -> Callable[[Context], EventStatus]:
         """Install a Simulator monitor that folds every step's margins into `tracker`, the
         tube's recovery flags into `recoveries` (with the centre margins, computed only
         while some flag is set or an episode is open) and counts the step in `watchdog`.
+
+        Drake's Simulator has one monitor slot: `also`, a monitor of one's own, runs at
+        every step as well (:func:`combine_monitors`, the most severe status wins: its
+        ``EventStatus.ReachedTermination`` ends the run, its ``Failed`` fails it). A
+        monitor already installed is not kept unless passed as `also`.
 
         In strict mode the first violation stops the run: ``AdvanceTo`` raises a
         RuntimeError whose message names the invariant, the time and the margin. A tripped
@@ -254,5 +261,29 @@ class InvariantMonitor(LeafSystem):
                     return EventStatus.ReachedTermination(None, stop)
             return EventStatus.DidNothing()
 
-        simulator.set_monitor(monitor)
-        return monitor
+        installed = monitor if also is None else combine_monitors(monitor, also)
+        simulator.set_monitor(installed)
+        return installed
+
+
+def combine_monitors(
+    *monitors: Callable[[Context], EventStatus],
+) -> Callable[[Context], EventStatus]:
+    """One Simulator monitor that calls every one of `monitors` at every step, in order,
+    and returns the most severe of their statuses (Drake's order: DidNothing < Succeeded <
+    ReachedTermination < Failed; the first of equal severity), so each one's termination
+    or failure still ends the run with its message. Drake's Simulator holds one monitor
+    (``Simulator.set_monitor``): this is how the invariant monitor and one's own share it.
+    A monitor returning None counts as DidNothing."""
+    if not monitors:
+        raise ValueError("combine_monitors: give at least one monitor")
+
+    def combined(root_context: Context) -> EventStatus:
+        worst = EventStatus.DidNothing()
+        for monitor in monitors:
+            status = monitor(root_context)
+            if status is not None and status.severity().value > worst.severity().value:
+                worst = status
+        return worst
+
+    return combined

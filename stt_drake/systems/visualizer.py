@@ -236,9 +236,31 @@ def AddTubeVisualizer(  # noqa: N802 (Drake's naming of builder functions)
     prefix: str = "/stt",
     full_covariance: bool = False,
 ) -> TubeVisualizer:
-    """Add a :class:`TubeVisualizer` named "tube_visualizer" to `builder`, wired to the
-    `tube` and `belief` ports (and to `output` when `robot_radius` is given); ellipsoids
-    with `full_covariance`."""
+    """Add a :class:`TubeVisualizer` named "tube_visualizer" to `builder` and connect it:
+    the tube and every obstacle's ε and p_d level sets drawn live in Meshcat (and recorded
+    while ``meshcat.StartRecording()`` runs).
+
+    With the handles of :func:`stt_drake.assembly.stt.AddStt`::
+
+        meshcat = StartMeshcat()
+        AddTubeVisualizer(builder, meshcat, stt.tube, stt.belief, 2, stt.task)
+
+    Args:
+        builder: the DiagramBuilder.
+        meshcat: the Meshcat to draw in.
+        tube: the tube's [c, r] output port (``stt.tube``).
+        belief: the `obstacle_belief` port the tube reads (``stt.belief``).
+        dimension: n, 2 (drawn in the plane z = 0) or 3.
+        task: the obstacles' r_o, ε, p_d per slot (``stt.task``).
+        output: the plant's output y, drawn as the robot when `robot_radius` is given.
+        robot_radius: the robot's radius (m); None draws no robot.
+        publish_period: seconds between frames (default 1/30).
+        prefix: the Meshcat path everything is drawn under.
+        full_covariance: draw each Σ_j's level sets as ellipsoids (``stt.full_covariance``).
+
+    Returns:
+        the added :class:`TubeVisualizer`.
+    """
     visualizer = builder.AddNamedSystem(
         "tube_visualizer",
         TubeVisualizer(

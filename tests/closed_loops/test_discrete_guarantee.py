@@ -43,7 +43,9 @@ def belief(mean, sigma, radius=0.2, epsilon=0.9, p_d=0.9999) -> ObstacleBelief:
 
 
 def law(target, **overrides) -> TubeLaw:
-    parameters = dict(k1=0.7, k2=0.4, k3=0.4, r_min=0.1, r_max=0.27, nu=40.0)
+    parameters = dict(
+        k1=0.7, k2=0.4, k3=0.4, r_min=0.1, r_max=0.27, nu=40.0, max_center_speed=np.inf
+    )
     parameters.update(overrides)
     return TubeLaw(target=np.asarray(target, dtype=float), **parameters)
 

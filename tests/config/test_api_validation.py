@@ -120,10 +120,16 @@ def rule_part(message: str, where: str) -> str:
 # --------------------------------------------------------------------------- found cases
 
 
-def test_addstt_refuses_an_epsilon_above_one_naming_the_obstacle():
+def test_an_epsilon_above_one_is_refused_by_the_obstacle_and_by_addstt():
     """It built and then stopped at t = 2.13 s ("tube law produced a non-finite value").
-    Now nothing is added to the builder."""
-    obstacles = [obstacle(CENTRES[0]), obstacle(CENTRES[1]), obstacle(CENTRES[2], epsilon=1.5)]
+    Now the Obstacle refuses it when made, and AddStt refuses an obstacle changed
+    afterwards, naming it, before anything is added to the builder."""
+    with pytest.raises(RuleError) as made:
+        obstacle(CENTRES[2], epsilon=1.5)
+    assert str(made.value) == "Obstacle: epsilon must lie in (0, 1] (got 1.5)"
+    changed = obstacle(CENTRES[2])
+    changed.epsilon = 1.5
+    obstacles = [obstacle(CENTRES[0]), obstacle(CENTRES[1]), changed]
     builder = DiagramBuilder()
     with pytest.raises(ValueError) as info:
         AddStt(builder, law(), FunnelController(kappa=[2.0]), START, obstacles=obstacles)
@@ -210,15 +216,21 @@ def test_a_nu_too_small_for_the_obstacle_count_is_refused_when_the_count_is_know
 )
 def test_tube_law_checks_its_constants(changes, expected):
     constants = dict(target=np.array(TARGET), k1=0.5, k2=0.4, k3=0.4, r_min=R_MIN, r_max=R_MAX)
-    constants.update({"nu": 20.0, **changes})
+    constants.update({"nu": 20.0, "max_center_speed": 0.1, **changes})
     with pytest.raises(RuleError) as info:
         TubeLaw(**constants)
     assert str(info.value).startswith(expected)
 
 
-def test_tube_law_keeps_an_infinite_center_speed_and_checks_replaced_copies():
-    unbounded = TubeLaw(np.array(TARGET), 0.5, 0.4, 0.4, R_MIN, R_MAX, 20.0)
-    assert unbounded.max_center_speed == math.inf  # the default: no bound, no recovery speed
+def test_tube_law_needs_its_center_speed_and_checks_replaced_copies():
+    """No default v_c: an infinite one (no boundary layer, no recovery speed) must be asked
+    for, so the recovery is never switched off silently."""
+    with pytest.raises(TypeError, match="max_center_speed"):
+        TubeLaw(np.array(TARGET), 0.5, 0.4, 0.4, R_MIN, R_MAX, 20.0)
+    unbounded = TubeLaw(
+        np.array(TARGET), 0.5, 0.4, 0.4, R_MIN, R_MAX, 20.0, max_center_speed=math.inf
+    )
+    assert unbounded.max_center_speed == math.inf
     moved = unbounded.with_target(np.array([1.0, 1.0]))
     np.testing.assert_array_equal(moved.target, [1.0, 1.0])
     with pytest.raises(RuleError, match=r"^TubeLaw: r_min must be > 0"):
@@ -237,8 +249,10 @@ def test_obstacle_task_checks_every_slot():
         ObstacleTask(np.array([0.2, math.nan]), np.full(2, 0.9), np.full(2, 0.99))
     with pytest.raises(RuleError, match=r"^ObstacleTask: p_d needs one entry per obstacle slot"):
         ObstacleTask(np.full(2, 0.2), np.full(2, 0.9), np.full(3, 0.99))
+    flat = obstacle(CENTRES[1])
+    flat.radius = 0.0  # changed after it was made (which would refuse it)
     with pytest.raises(RuleError, match=r"^ObstacleTask\.of: obstacles\[1\]\.radius must be > 0"):
-        ObstacleTask.of([obstacle(CENTRES[0]), obstacle(CENTRES[1], radius=0.0)])
+        ObstacleTask.of([obstacle(CENTRES[0]), flat])
     assert ObstacleTask(np.empty(0), np.empty(0), np.empty(0)).count == 0
 
 
@@ -283,16 +297,11 @@ def test_the_initial_condition_uses_a_full_covariance_exactly():
 #: (case, changed value, the file's field path, the API's "<owner>: <argument>",
 #: what the loader adds to the rule, what the API adds).
 SAME_RULE = [
-    ("epsilon", {"epsilon": 1.5}, "scenario.obstacles[2].epsilon", "AddStt: obstacles[2].epsilon"),
-    (
-        "epsilon_zero",
-        {"epsilon": 0.0},
-        "scenario.obstacles[2].epsilon",
-        "AddStt: obstacles[2].epsilon",
-    ),
-    ("p_d_one", {"p_d": 1.0}, "scenario.obstacles[2].p_d", "AddStt: obstacles[2].p_d"),
-    ("p_d_below_epsilon", {"p_d": 0.5}, "scenario.obstacles[2].p_d", "AddStt: obstacles[2].p_d"),
-    ("radius", {"radius": 0.0}, "scenario.obstacles[2].radius", "AddStt: obstacles[2].radius"),
+    ("epsilon", {"epsilon": 1.5}, "scenario.obstacles[2].epsilon", "Obstacle: epsilon"),
+    ("epsilon_zero", {"epsilon": 0.0}, "scenario.obstacles[2].epsilon", "Obstacle: epsilon"),
+    ("p_d_one", {"p_d": 1.0}, "scenario.obstacles[2].p_d", "Obstacle: p_d"),
+    ("p_d_below_epsilon", {"p_d": 0.5}, "scenario.obstacles[2].p_d", "Obstacle: p_d"),
+    ("radius", {"radius": 0.0}, "scenario.obstacles[2].radius", "Obstacle: radius"),
     ("r_min", {"r_min": -0.1}, "scenario.tube.r_min", "TubeLaw: r_min"),
     ("r_max", {"r_max": 0.05}, "scenario.tube.r_max", "TubeLaw: r_max"),
     ("k1", {"k1": 0.0}, "scenario.tube.k1", "TubeLaw: k1"),

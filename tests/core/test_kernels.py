@@ -244,7 +244,7 @@ def test_tube_step_agrees_between_paths(n, worst):
         TubeLaw(
             target=law.target, k1=law.k1, k2=np.linspace(0.2, 0.6, 120),
             k3=np.linspace(0.0, 0.9, 120), r_min=law.r_min, r_max=law.r_max, nu=law.nu,
-            linear_zone=0.05,
+            linear_zone=0.05, max_center_speed=law.max_center_speed,
         ),
     ]
     for tube_law in laws:
@@ -283,7 +283,7 @@ def test_tube_step_agrees_between_paths_in_one_dimension():
         radius=np.array([0.2, 0.3, 0.2]), epsilon=np.array([0.8, 0.9, 0.7]),
         p_d=np.array([0.999, 0.9999, 0.999]),
     )
-    law = TubeLaw(np.array([5.0]), 0.5, 0.4, 0.4, 0.1, 0.5, 30.0)
+    law = TubeLaw(np.array([5.0]), 0.5, 0.4, 0.4, 0.1, 0.5, 30.0, max_center_speed=np.inf)
     center = np.array([0.3])
     compiled = law.evaluate(center, belief)
     with backend.pure_numpy():

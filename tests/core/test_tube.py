@@ -1,4 +1,5 @@
-"""Tests of stt_drake.core.tube (the tube law of paper Sec. 3, with README's design fixes).
+"""Tests of stt_drake.core.tube (the tube law of paper Sec. 3, with the design fixes of
+docs/design.md).
 
 Expected values come from independent references: scipy.stats.ncx2 for q_j and d̂_j,
 scipy.special.logsumexp for the soft-min, hand-written formulas from the paper for ċ,
@@ -53,7 +54,9 @@ def _belief(mean, sigma, radius, epsilon, p_d) -> ObstacleBelief:
 
 
 def _law(target, **overrides) -> TubeLaw:
-    parameters = dict(k1=0.7, k2=0.4, k3=0.4, r_min=0.21, r_max=0.27, nu=20.0)
+    parameters = dict(
+        k1=0.7, k2=0.4, k3=0.4, r_min=0.21, r_max=0.27, nu=20.0, max_center_speed=np.inf
+    )
     parameters.update(overrides)
     return TubeLaw(target=np.asarray(target, dtype=float), **parameters)
 
@@ -118,7 +121,7 @@ def test_radius_with_no_obstacles_is_r_max():
 
 
 def test_soft_min_radius_goes_negative_with_many_obstacles_and_small_nu():
-    # The trap README "Design decisions" names: 50 obstacles all at d̂ = r_min = 0.1 with ν = 20.
+    # The trap docs/design.md names: 50 obstacles all at d̂ = r_min = 0.1 with ν = 20.
     # r = r_min − ln(50 + e^{−ν (r_max − r_min)})/ν = 0.1 − ln(50.018...)/20 < 0.
     r_min, r_max, nu = 0.1, 0.27, 20.0
     law = _law(np.zeros(2), r_min=r_min, r_max=r_max, nu=nu)
@@ -507,7 +510,7 @@ def test_null_space_direction_3d_varies_continuously_along_a_path(goal):
 # Attraction flow and reach time
 # --------------------------------------------------------------------------------------
 def _paper_closed_form(center_1, target, k1, elapsed):
-    """Eq. (13) per component with the signed powers of README "Design decisions":
+    """Eq. (13) per component with the signed powers of docs/design.md:
     c(t) = η − sign(η − c₁)·max(|η − c₁|^{2/3} − (2/3)k1 (t − t₁), 0)^{3/2}."""
     error = target - center_1
     inner = np.abs(error) ** (2.0 / 3.0) - (2.0 / 3.0) * k1 * elapsed

@@ -193,6 +193,7 @@ def make_law(linear_zone: float = 0.0) -> TubeLaw:
         r_max=0.3,
         nu=40.0,
         linear_zone=linear_zone,
+        max_center_speed=np.inf,  # the paper's law
     )
 
 
@@ -461,6 +462,7 @@ def thin_layer_law(linear_zone: float, law_class: type[TubeLaw] = TubeLaw) -> Tu
         r_max=0.27,
         nu=20.0,
         linear_zone=linear_zone,
+        max_center_speed=np.inf,  # the paper's law
     )
 
 
