@@ -52,7 +52,6 @@ test-fast: $(STAMP)
 	$(BIN)/lint-imports
 	$(PYTEST) -m "not slow and not notebook and not browser" --durations=10
 
-# Graphviz (`stt-drake diagram`) and headless Chromium (the replay test) are Debian packages.
 # The benchmark history (pytest-benchmark; benchmarks/): every run is saved in .benchmarks/
 # and compared with the previous saved run (rows listed, nothing fails).
 bench-history: $(STAMP)
@@ -69,12 +68,21 @@ bench-compare: $(STAMP)
 docs: $(STAMP)
 	$(BIN)/python -m sphinx -W --keep-going -b html docs docs/_build/html
 
+# Graphviz (`stt-drake diagram`) and headless Chromium (the replay test) are Debian packages.
+# As root they are installed directly; otherwise through sudo (which may ask for a
+# password); with neither, or when the install fails, the recipe stops (exit 1) with the
+# command to run. Nothing is skipped: the diagram and replay tests need both.
+APT_INSTALL := apt-get install -y graphviz chromium
 system-packages:
-	@if ! command -v dot >/dev/null 2>&1 || ! command -v chromium >/dev/null 2>&1; then \
-	  echo "installing Debian packages graphviz and chromium for the diagram and replay tests"; \
-	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
-	    graphviz chromium >/dev/null; \
-	fi
+	@if command -v dot >/dev/null 2>&1 && command -v chromium >/dev/null 2>&1; then exit 0; fi; \
+	stop() { echo "$$1; install them with:" >&2; echo "  sudo $(APT_INSTALL)" >&2; exit 1; }; \
+	if [ "$$(id -u)" = 0 ]; then as=""; \
+	elif command -v sudo >/dev/null 2>&1; then as="sudo"; \
+	else stop "the tests need the Debian packages graphviz and chromium, and installing them needs root or sudo"; fi; \
+	echo "installing the Debian packages graphviz and chromium for the diagram and replay tests$${as:+ (through sudo)}"; \
+	{ $$as env DEBIAN_FRONTEND=noninteractive apt-get update -qq && \
+	  $$as env DEBIAN_FRONTEND=noninteractive $(APT_INSTALL) -qq >/dev/null; } || \
+	  stop "installing graphviz and chromium failed"
 
 clean:
 	rm -rf $(VENV) results .pytest_cache .ruff_cache .hypothesis .benchmarks

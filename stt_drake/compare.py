@@ -16,10 +16,12 @@ closed loop has c = y and r = 0, and only the campaign's output check is reporte
   controller) and no plant limit was exceeded, else 0.0 (one simulation);
 * `worst_collision_frequency`, `clopper_pearson_lower_99`, `clopper_pearson_upper_99`: the
   campaign's output check at the worst obstacle (highest worst-time collision frequency),
-  with its simultaneous 99 % Clopper-Pearson interval; `certified`: every obstacle's output
-  verdict is certified;
-* `t_reach_s` (s, null if never), `path_length_m`, `min_clearance_m` = min over time and
-  obstacles of ‖y − μ_j‖ − r_o_j;
+  with its simultaneous 99 % Clopper-Pearson interval; `verdict` over every obstacle's
+  output verdict (:func:`row_verdict`: ``certified``, ``inconclusive`` or ``violated``) and
+  `runs_to_certify` (inconclusive: about how many runs would certify it at the frequencies
+  seen, null otherwise or when no run count would);
+* `t_output_in_target_s` (s, null if never: the output's final entry into the target set),
+  `path_length_m`, `min_clearance_m` = min over time and obstacles of ‖y − μ_j‖ − r_o_j;
 * `step_us_median`: the controller's cost per control step (µs, median, this process): STT,
   the tube law's :meth:`~stt_drake.core.tube.TubeLaw.evaluate` on the belief as the tube
   prepares it (:meth:`~stt_drake.core.belief.ObstacleBelief.from_port`) plus
@@ -47,7 +49,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -88,7 +90,7 @@ from stt_drake.core.crowd_metrics import (
     output_reach_time,
 )
 from stt_drake.core.rules import RuleError
-from stt_drake.core.statistics import CERTIFIED
+from stt_drake.core.statistics import CERTIFIED, INCONCLUSIVE, VIOLATED
 from stt_drake.run import scenario_simulator, simulate
 from stt_drake.runlog import RunLog, write_json
 from stt_drake.systems.baselines import PotentialFieldController
@@ -104,8 +106,9 @@ ROW_KEYS = (
     "worst_collision_frequency",
     "clopper_pearson_lower_99",
     "clopper_pearson_upper_99",
-    "certified",
-    "t_reach_s",
+    "verdict",
+    "runs_to_certify",
+    "t_output_in_target_s",
     "path_length_m",
     "min_clearance_m",
     "step_us_median",
@@ -254,6 +257,20 @@ def _worst_obstacle(summary: dict[str, Any]) -> dict[str, Any]:
     )
 
 
+def row_verdict(obstacles: Sequence[dict[str, Any]]) -> tuple[str, int | None]:
+    """The verdict of a campaign's output check over all its obstacles and, when it is
+    ``inconclusive``, about how many runs would certify every obstacle (the largest of
+    their `runs_to_certify`; None when one of them has none): ``violated`` if any obstacle
+    is violated, else ``inconclusive`` if any is, else ``certified``."""
+    verdicts = {o["verdict"] for o in obstacles}
+    if VIOLATED in verdicts:
+        return VIOLATED, None
+    if INCONCLUSIVE not in verdicts:
+        return CERTIFIED, None
+    needed = [o["runs_to_certify"] for o in obstacles if o["verdict"] == INCONCLUSIVE]
+    return INCONCLUSIVE, None if None in needed else max(needed)
+
+
 def comparison_row(
     controller: str,
     run: ControllerRun,
@@ -264,18 +281,20 @@ def comparison_row(
     """The comparison.json row of one controller (:data:`ROW_KEYS`, module docstring)."""
     log = run.log
     crowd = crowd_record(log, comfort_distance)
-    t_reach = output_reach_time(log.t, log.output, log.target, log.target_set_radius)
+    t_in = output_reach_time(log.t, log.output, log.target, log.target_set_radius)
     worst = _worst_obstacle(campaign)
+    verdict, runs_to_certify = row_verdict(campaign["obstacles"])
     steps = np.linalg.norm(np.diff(log.output, axis=0), axis=1)
     row = {
         "controller": controller,
         "model_error": model_error,
-        "success_rate": 1.0 if run.finished and t_reach is not None else 0.0,
+        "success_rate": 1.0 if run.finished and t_in is not None else 0.0,
         "worst_collision_frequency": worst["worst_collision_frequency"],
         "clopper_pearson_lower_99": worst["clopper_pearson_lower_99"],
         "clopper_pearson_upper_99": worst["clopper_pearson_upper_99"],
-        "certified": all(o["verdict"] == CERTIFIED for o in campaign["obstacles"]),
-        "t_reach_s": t_reach,
+        "verdict": verdict,
+        "runs_to_certify": runs_to_certify,
+        "t_output_in_target_s": t_in,
         "path_length_m": float(steps.sum()),
         "min_clearance_m": min_clearance(log),
         "step_us_median": run.step_us,
@@ -361,7 +380,7 @@ def compare(
     scheduler: str | None = None,
     model_error: bool = False,
     solver: str = "osqp",
-    progress: bool = False,
+    progress: Callable[[int, int, str], None] | None = None,
     resume: bool = False,
     comfort_distance: float = DEFAULT_COMFORT_DISTANCE,
 ) -> dict[str, Any]:
@@ -372,7 +391,9 @@ def compare(
     `out_dir` is locked for the whole comparison. With `resume`, every closed loop is
     simulated again (one simulation per controller and variant; it must equal the one its
     campaign sampled against) and each campaign continues from its ``runs.jsonl``;
-    without, a folder that already holds a comparison is refused.
+    without, a folder that already holds a comparison is refused. `progress`, if given,
+    is called with (closed loops done, closed loops in all, what comes next) before each
+    controller's closed loop and at the end; each campaign then shows its progress bar.
 
     Raises:
         CompareError: bad input (an option, the scenario, the folder: locked, or holding a
@@ -410,8 +431,12 @@ def compare(
                 file=sys.stderr,
             )
         rows, figure_runs = [], {}
+        total = len(variants) * len(ordered)
         for name, variant, folder in variants:
             for controller in ordered:
+                if progress is not None:
+                    what = controller if name is None else f"{controller} ({name})"
+                    progress(len(rows), total, f"next: {what}")
                 run = _simulate(variant, controller, solver)
                 loop = ClosedLoop.from_log(run.log)
                 if resume:
@@ -422,7 +447,7 @@ def compare(
                     workers=workers,
                     scheduler=scheduler,
                     resume=resume,
-                    progress=progress,
+                    progress=progress is not None,
                     closed_loop=loop,
                 )
                 rows.append(
@@ -430,6 +455,8 @@ def compare(
                 )
                 if name is None:
                     figure_runs[controller] = run.log
+        if progress is not None:
+            progress(total, total, "done")
         document = {
             "scenario": scenario.name,
             "scenario_path": str(path),
@@ -441,10 +468,10 @@ def compare(
             "rows": rows,
         }
         write_json(out_dir / COMPARISON_FILE, document)
-        (out_dir / TABLE_FILE).write_text(comparison_table(rows) + "\n")
+        (out_dir / TABLE_FILE).write_text(comparison_markdown(document))
         from stt_drake.plotting.compare import plot_comparison
 
-        plot_comparison(figure_runs, rows).savefig(out_dir / FIGURE_FILE, dpi=120)
+        plot_comparison(figure_runs, rows, runs).savefig(out_dir / FIGURE_FILE, dpi=120)
     return document
 
 
@@ -469,37 +496,88 @@ def cell(value: Any, digits: int = 3) -> str:
     return str(value)
 
 
-#: The table's columns: (header, row key).
-_COLUMNS = (
-    ("controller", "controller"),
-    ("model error", "model_error"),
-    ("success", "success_rate"),
-    ("worst collision freq.", "worst_collision_frequency"),
-    ("99 % CP lower", "clopper_pearson_lower_99"),
-    ("99 % CP upper", "clopper_pearson_upper_99"),
-    ("certified", "certified"),
-    ("t_reach (s)", "t_reach_s"),
-    ("path (m)", "path_length_m"),
-    ("min clearance (m)", "min_clearance_m"),
-    ("step (µs)", "step_us_median"),
-    ("QP infeasible", "qp_infeasible_count"),
-    ("true collision", "collision_rate"),
-    ("min distance (m)", "min_distance_m"),
-    ("comfort violation (s)", "comfort_violation_s"),
+#: A column of a markdown table: (header, row key, meaning).
+Column = tuple[str, str, str]
+#: The columns both comparison tables have.
+CONTROLLER_COLUMN: Column = (
+    "controller",
+    "controller",
+    "stt: the reactive tube; stt-guided: the tube under the guide; cbf: chance-constrained "
+    "CBF-QP; apf: potential field",
+)
+STEP_COLUMN: Column = ("step (µs)", "step_us_median", "median cost of one control step")
+#: The table's columns (comparison.md's legend says what each means).
+_COLUMNS: tuple[Column, ...] = (
+    CONTROLLER_COLUMN,
+    ("model error", "model_error", "the perturbation of the plant's true parameters (— none)"),
+    ("success", "success_rate", "1 if the run ended normally and the output reached the "
+     "target set and stayed"),
+    ("worst collision freq.", "worst_collision_frequency", "the campaign's output collision "
+     "frequency at the worst obstacle and time"),
+    ("99 % CP lower", "clopper_pearson_lower_99", "its simultaneous 99 % Clopper-Pearson "
+     "lower bound"),
+    ("99 % CP upper", "clopper_pearson_upper_99", "and upper bound"),
+    ("verdict", "verdict", "certified: every obstacle's upper bound ≤ 1 − ε_j; violated: a "
+     "lower bound > 1 − ε_j; inconclusive: neither (needs ≈N runs: a campaign that size "
+     "would certify at the frequencies seen)"),
+    ("output in target (s)", "t_output_in_target_s", "the output's final entry into the "
+     "target set (— never)"),
+    ("path (m)", "path_length_m", "length of the output's path"),
+    ("min clearance (m)", "min_clearance_m", "min over time and obstacles of ‖y − μ_j‖ − "
+     "r_o_j (the belief's means)"),
+    STEP_COLUMN,
+    ("QP infeasible", "qp_infeasible_count", "the CBF's updates whose hard QP was infeasible"),
+    ("true collision", "collision_rate", "1 if the output came within r_o_j of a true "
+     "obstacle"),
+    ("min distance (m)", "min_distance_m", "min of ‖y − O_j‖ − r_o_j to the true obstacles"),
+    ("comfort violation (s)", "comfort_violation_s", "seconds closer than the comfort "
+     "distance to a true obstacle"),
 )
 
 
-def markdown_table(rows: Sequence[dict[str, Any]], columns: Sequence[tuple[str, str]]) -> str:
-    """`rows` as a markdown table of `columns` ((header, row key) pairs)."""
+def markdown_table(rows: Sequence[dict[str, Any]], columns: Sequence[Column]) -> str:
+    """`rows` as a markdown table of `columns`."""
     lines = [
-        "| " + " | ".join(header for header, _ in columns) + " |",
+        "| " + " | ".join(header for header, _, _ in columns) + " |",
         "|" + "|".join("---" for _ in columns) + "|",
     ]
     for row in rows:
-        lines.append("| " + " | ".join(cell(row[key]) for _, key in columns) + " |")
+        lines.append("| " + " | ".join(cell(row[key]) for _, key, _ in columns) + " |")
     return "\n".join(lines)
 
 
+def markdown_document(
+    title: str, facts: Sequence[str], table: str, columns: Sequence[Column]
+) -> str:
+    """A comparison.md: the `title` heading, the `facts` (one line each), the table and a
+    legend of the `columns`' meanings."""
+    legend = [f"- **{header}**: {meaning}" for header, _, meaning in columns]
+    return "\n".join(
+        [f"# {title}", "", *facts, "", table, "", "Columns:", "", *legend, ""]
+    )
+
+
+def verdict_cell(row: dict[str, Any]) -> str:
+    """The verdict as the table says it: ``inconclusive (needs ≈N runs)`` when the data
+    gives N."""
+    if row["verdict"] == INCONCLUSIVE and row["runs_to_certify"] is not None:
+        return f"{INCONCLUSIVE} (needs ≈{row['runs_to_certify']:,} runs)"
+    return row["verdict"]
+
+
 def comparison_table(rows: Sequence[dict[str, Any]]) -> str:
-    """The rows as a markdown table (comparison.md, and what the command prints)."""
-    return markdown_table(rows, _COLUMNS)
+    """The rows as a markdown table (what the command prints, and comparison.md's body)."""
+    return markdown_table([{**row, "verdict": verdict_cell(row)} for row in rows], _COLUMNS)
+
+
+def comparison_markdown(document: dict[str, Any]) -> str:
+    """comparison.md of a comparison.json `document`: heading, scenario, runs, the table
+    and what its columns mean."""
+    facts = [
+        f"Scenario `{document['scenario']}` ({document['scenario_path']}); one simulation per "
+        f"controller, then a true-obstacle campaign of {document['runs']:,} runs against it.",
+        "",
+        "Generated by `stt-drake compare`; every number is in comparison.json.",
+    ]
+    title = f"Controller comparison: {document['scenario']}"
+    return markdown_document(title, facts, comparison_table(document["rows"]), _COLUMNS)

@@ -16,7 +16,8 @@ output reached the target set and stayed, :func:`stt_drake.compare.output_reach_
 :mod:`stt_drake.core.progress` on the logged centre — the output for a baseline — and
 attraction point), `unsafe` (at some logged time the belief's exact probability that the
 output collides with obstacle j exceeds 1 − ε_j: the PrT-RAS task broken, Definition 2.3),
-`t_reach_s`, `path_length_m`, `min_clearance_m` (min of ‖y − μ_j‖ − r_o_j), `step_us`;
+`t_output_in_target_s` (the output's final entry into the target set, null if not
+reached), `path_length_m`, `min_clearance_m` (min of ‖y − μ_j‖ − r_o_j), `step_us`;
 and against the draw's TRUE obstacles (:mod:`stt_drake.campaign.crowd_metrics`; without perception
 the scripted means): `collided` (‖y − O_j‖ < r_o_j at some logged time),
 `first_collision_s`, `obstacle_collisions` and `obstacle_epsilon` (per obstacle),
@@ -32,8 +33,8 @@ scenario file hash, seed, solver, comfort distance) must match, and `draws` may 
 
 A row of ``comparison.json`` (:data:`DRAW_ROW_KEYS`) per controller, over its simulated
 draws: `success_rate` (reached), `stall_rate`, `timeout_rate` (neither reached nor
-stalled: still moving at the end, or stopped), `unsafe_rate`, `t_reach_p50_s` /
-`t_reach_p90_s` over the reached draws, `path_length_mean_m`, `min_clearance_m` (the
+stalled: still moving at the end, or stopped), `unsafe_rate`, `t_output_in_target_p50_s` /
+`t_output_in_target_p90_s` over the reached draws, `path_length_mean_m`, `min_clearance_m` (the
 smallest over draws) and `step_us_median`; against the true obstacles: `collision_rate`
 (draws with a collision), `min_distance_m` (the mean over draws of each draw's minimum),
 `min_distance_worst_m` (the smallest), `comfort_violation_s` (mean over draws),
@@ -48,7 +49,7 @@ import hashlib
 import json
 import statistics
 import sys
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -69,7 +70,11 @@ from stt_drake.campaign.folder import (
 )
 from stt_drake.campaign.spec import CampaignError, CampaignStoppedError
 from stt_drake.compare import (
+    CONTROLLER_COLUMN,
+    STEP_COLUMN,
+    Column,
     CompareError,
+    markdown_document,
     markdown_table,
     min_clearance,
     simulate_baseline,
@@ -97,8 +102,8 @@ DRAW_ROW_KEYS = (
     "stall_rate",
     "timeout_rate",
     "unsafe_rate",
-    "t_reach_p50_s",
-    "t_reach_p90_s",
+    "t_output_in_target_p50_s",
+    "t_output_in_target_p90_s",
     "path_length_mean_m",
     "min_clearance_m",
     "step_us_median",
@@ -110,7 +115,7 @@ DRAW_ROW_KEYS = (
     "collision_within_allowed",
 )
 #: The crowd keys of a draw record (those of the campaigns' runs but path length and the
-#: reach time, which the record has already as `path_length_m` and `t_reach_s`).
+#: reach time, which the record has already as `path_length_m` and `t_output_in_target_s`).
 DRAW_CROWD_KEYS = tuple(k for k in CROWD_KEYS if k not in ("path_length_m", "time_to_goal_s"))
 DRAWS_SPEC_FILE = "draws_spec.json"
 #: Draws-spec keys added later, with the value an older ``draws_spec.json`` meant.
@@ -148,8 +153,8 @@ def draw_record(
     else:
         run = simulate_baseline(scenario, controller, solver)
     log = run.log
-    t_reach = output_reach_time(log.t, log.output, log.target, log.target_set_radius)
-    reached = run.finished and t_reach is not None
+    t_in = output_reach_time(log.t, log.output, log.target, log.target_set_radius)
+    reached = run.finished and t_in is not None
     stalls = find_stalls(
         log.t, log.center, log.attraction_point, stall_rule(scenario), log.target_set_radius
     )
@@ -163,7 +168,7 @@ def draw_record(
         "reached": reached,
         "stalled": not reached and bool(stalls) and stalls[-1]["end_s"] is None,
         "unsafe": unsafe,
-        "t_reach_s": t_reach if reached else None,
+        "t_output_in_target_s": t_in if reached else None,
         "path_length_m": float(steps.sum()),
         "min_clearance_m": min_clearance(log),
         "step_us": run.step_us,
@@ -199,14 +204,14 @@ def _is_draw_record(record: Any, seed: int) -> bool:
         return False
     if record.get("status") == "rejected":
         return isinstance(record.get("reason"), str)
-    t_reach = record.get("t_reach_s")
+    t_in = record.get("t_output_in_target_s", "missing")  # an older version's record: redone
     return (
         record.get("status") == "simulated"
         and all(isinstance(record.get(k), bool) for k in ("reached", "stalled", "unsafe"))
-        and (t_reach is None or _is_number(t_reach))
+        and (t_in is None or _is_number(t_in))
         and all(_is_number(record.get(k)) for k in ("path_length_m", "min_clearance_m", "step_us"))
         and all(k in record for k in DRAW_CROWD_KEYS)
-        and is_crowd_record({**record, "time_to_goal_s": t_reach})
+        and is_crowd_record({**record, "time_to_goal_s": t_in})
     )
 
 
@@ -253,7 +258,7 @@ def draw_row(controller: str, records: Sequence[dict[str, Any]]) -> dict[str, An
     def rate(key: str) -> float | None:
         return sum(r[key] for r in simulated) / count if count else None
 
-    times = [r["t_reach_s"] for r in simulated if r["reached"]]
+    times = [r["t_output_in_target_s"] for r in simulated if r["reached"]]
     timeout = sum(not r["reached"] and not r["stalled"] for r in simulated)
     return {
         "controller": controller,
@@ -262,8 +267,8 @@ def draw_row(controller: str, records: Sequence[dict[str, Any]]) -> dict[str, An
         "stall_rate": rate("stalled"),
         "timeout_rate": timeout / count if count else None,
         "unsafe_rate": rate("unsafe"),
-        "t_reach_p50_s": float(np.percentile(times, 50)) if times else None,
-        "t_reach_p90_s": float(np.percentile(times, 90)) if times else None,
+        "t_output_in_target_p50_s": float(np.percentile(times, 50)) if times else None,
+        "t_output_in_target_p90_s": float(np.percentile(times, 90)) if times else None,
         "path_length_mean_m": statistics.fmean(r["path_length_m"] for r in simulated)
         if count
         else None,
@@ -303,11 +308,14 @@ def compare_draws(
     solver: str = "osqp",
     resume: bool = False,
     comfort_distance: float = DEFAULT_COMFORT_DISTANCE,
+    progress: Callable[[int, int], None] | None = None,
 ) -> dict[str, Any]:
     """Run every controller on `draws` draws (module docstring) on `workers` local
     processes; write ``draws.jsonl``, ``comparison.json`` and ``comparison.md`` into
     `out_dir` (locked meanwhile); return the comparison.json document. With `resume`, the
-    draws already in ``draws.jsonl`` are kept.
+    draws already in ``draws.jsonl`` are kept. `progress`, if given, is called with (runs
+    done, runs in all; a run is one controller on one draw) before the first run and as
+    each batch finishes.
 
     Raises:
         CompareError: bad input (an option, the scenario without a random field, the
@@ -365,14 +373,21 @@ def compare_draws(
             [(c, i, run_seed(seed, i))] for i in range(draws) for c in ordered if (c, i) not in done
         )
         backend = LocalPool(workers, ["stt_drake.compare_draws"])
+        total, finished = draws * len(ordered), sum(c in ordered and i < draws for c, i in done)
+        if progress is not None:
+            progress(finished, total)
         try:
             with (out_dir / DRAWS_FILE).open("a" if resume else "w") as stream:
 
                 def on_records(batch: list[dict[str, Any]]) -> None:
+                    nonlocal finished
+                    finished += len(batch)
                     for record in batch:
                         stream.write(record_line(record) + "\n")
                         done[(record["controller"], record["draw"])] = record
                     stream.flush()
+                    if progress is not None:
+                        progress(finished, total)
 
                 arguments = (source, solver, comfort_distance)
                 execute(backend, draws_task, arguments, pending, on_records)
@@ -397,29 +412,52 @@ def compare_draws(
             "rows": rows,
         }
         write_json(out_dir / "comparison.json", document)
-        (out_dir / "comparison.md").write_text(draws_table(rows) + "\n")
+        (out_dir / "comparison.md").write_text(draws_markdown(document))
     return document
 
 
-#: The draws table's columns: (header, row key).
-_COLUMNS = (
-    ("controller", "controller"),
-    ("draws", "draws"),
-    ("success", "success_rate"),
-    ("stall", "stall_rate"),
-    ("timeout", "timeout_rate"),
-    ("unsafe", "unsafe_rate"),
-    ("t_reach p50 (s)", "t_reach_p50_s"),
-    ("t_reach p90 (s)", "t_reach_p90_s"),
-    ("path (m, mean)", "path_length_mean_m"),
-    ("min clearance (m)", "min_clearance_m"),
-    ("step (µs)", "step_us_median"),
-    ("true collision", "collision_rate"),
-    ("min distance (m, mean)", "min_distance_m"),
-    ("comfort violation (s, mean)", "comfort_violation_s"),
+#: The draws table's columns (comparison.md's legend says what each means).
+_COLUMNS: tuple[Column, ...] = (
+    CONTROLLER_COLUMN,
+    ("draws", "draws", "draws simulated (the rejected ones left out)"),
+    ("success", "success_rate", "fraction of draws whose output reached the target set and "
+     "stayed"),
+    ("stall", "stall_rate", "fraction that stalled to the end"),
+    ("timeout", "timeout_rate", "fraction neither reached nor stalled (still moving at the "
+     "end, or stopped)"),
+    ("unsafe", "unsafe_rate", "fraction where the belief's collision probability exceeded "
+     "1 − ε_j at some logged time"),
+    ("output in target p50 (s)", "t_output_in_target_p50_s", "median over the reached draws "
+     "of the output's final entry into the target set"),
+    ("output in target p90 (s)", "t_output_in_target_p90_s", "its 90th percentile"),
+    ("path (m, mean)", "path_length_mean_m", "mean length of the output's path"),
+    ("min clearance (m)", "min_clearance_m", "smallest ‖y − μ_j‖ − r_o_j over the draws "
+     "(the belief's means)"),
+    STEP_COLUMN,
+    ("true collision", "collision_rate", "fraction of draws whose output came within r_o_j "
+     "of a true obstacle"),
+    ("min distance (m, mean)", "min_distance_m", "mean over draws of min ‖y − O_j‖ − r_o_j "
+     "to the true obstacles"),
+    ("comfort violation (s, mean)", "comfort_violation_s", "mean seconds closer than the "
+     "comfort distance to a true obstacle"),
 )
 
 
 def draws_table(rows: Sequence[dict[str, Any]]) -> str:
-    """The rows as a markdown table (comparison.md, and what the command prints)."""
+    """The rows as a markdown table (what the command prints, and comparison.md's body)."""
     return markdown_table(rows, _COLUMNS)
+
+
+def draws_markdown(document: dict[str, Any]) -> str:
+    """comparison.md of a draws comparison.json `document`: heading, scenario, draws, the
+    table and what its columns mean."""
+    facts = [
+        f"Scenario `{document['scenario']}` ({document['scenario_path']}); every controller on "
+        f"the same {document['draws']:,} randomised draws (seed {document['seed']}, "
+        f"{document['rejected_draws']:,} rejected).",
+        "",
+        "Generated by `stt-drake compare --draws`; every number is in comparison.json, every "
+        "draw in draws.jsonl.",
+    ]
+    title = f"Controller comparison over draws: {document['scenario']}"
+    return markdown_document(title, facts, draws_table(document["rows"]), _COLUMNS)

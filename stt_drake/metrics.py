@@ -23,7 +23,12 @@ class RunMetrics(Mapping[str, Any]):
         scenario: the scenario's name.
         reached: the tube reached the target set and stayed to the end (the final task's,
             for a task sequence; every task completed), and the run ended normally.
-        t_reach: t_c, the final entry into the target set (s); None if never.
+        t_tube_in_target: t_c, the tube's final entry into the target set: from then on
+            Γ(t) ⊂ T (‖c − η‖ + r ≤ R_T) to the end (s); None if never.
+        t_output_in_target: the output's final entry into the target set: from then on
+            ‖y − η‖ ≤ R_T to the end (s; :func:`stt_drake.core.crowd_metrics.output_reach_time`,
+            the rule `stt-drake compare` uses); None if never. At most `t_tube_in_target`
+            while y stays in Γ(t).
         holds: every guarantee held at every step (margins ≥ −`holds_tolerance`).
         sim_time_s: simulated time reached (s; the last good step after an exception).
         wall_time_s: wall-clock time of the simulation (s), kernel loading excluded.
@@ -65,7 +70,8 @@ class RunMetrics(Mapping[str, Any]):
 
     scenario: str
     reached: bool
-    t_reach: float | None
+    t_tube_in_target: float | None
+    t_output_in_target: float | None
     holds: bool
     sim_time_s: float
     wall_time_s: float

@@ -2,24 +2,27 @@
 
 from __future__ import annotations
 
+import copy
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from pydrake.geometry import Meshcat
-from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
-from pydrake.systems.framework import Diagram
+from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorConfig
+from pydrake.systems.framework import Context, Diagram, EventStatus
 
 from stt_drake.assembly.diagram import SttDiagram, build_diagram
 from stt_drake.assembly.feasibility import scenario_warnings
 from stt_drake.assembly.guide import stall_rule
 from stt_drake.config import AssumptionError, Scenario
 from stt_drake.config.assumptions import check_target_separation
+from stt_drake.config.schema import default_simulator_config
 from stt_drake.core import backend
+from stt_drake.core.crowd_metrics import output_reach_time
 from stt_drake.core.invariants import (
     HOLDS_TOLERANCE,
     InvariantTracker,
@@ -36,7 +39,7 @@ from stt_drake.story import (
     target_separation_violations,
     track_consistency,
 )
-from stt_drake.systems.monitor import StepRateWatchdog, step_rate_limit
+from stt_drake.systems.monitor import InvariantMonitor, StepRateWatchdog, step_rate_limit
 
 #: Invariants whose margin is a length (the others are probabilities).
 _METRE_MARGINS = ("output_in_tube", "radius_positive")
@@ -135,7 +138,7 @@ def failure_reason(error: Exception, t: float) -> str:
     return f"{what} at t = {t:.2f} s ({detail})" if detail else f"{what} at t = {t:.2f} s"
 
 
-#: Relative slack on the scenario's max_step_size (see :func:`make_simulator`): far above
+#: Relative slack on the max_step_size (see :func:`make_diagram_simulator`): far above
 #: the rounding of event times (~1e-16 relative), far below anything the step's error
 #: control or a user's step bound could notice.
 MAX_STEP_SLACK = 1e-9
@@ -150,28 +153,67 @@ def make_simulator(
     recoveries: RecoveryTracker | None = None,
     progress: Callable[[float, InvariantTracker], None] | None = None,
 ) -> Simulator:
-    """The one place a Simulator is made for a built scenario: the scenario's
-    SimulatorConfig, and the invariant monitor attached so every guarantee is checked at
-    every step into `tracker` (:meth:`stt_drake.systems.monitor.InvariantMonitor.attach`:
-    `strict` stops at the first violation, `watchdog` bounds the step rate, `recoveries`
-    collects the recovery episodes, `progress` is told every step)."""
+    """The Simulator of a built scenario (:func:`make_diagram_simulator` with the
+    scenario's SimulatorConfig), and the invariant monitor attached so every guarantee is
+    checked at every step into `tracker`
+    (:meth:`stt_drake.systems.monitor.InvariantMonitor.attach`: `strict` stops at the first
+    violation, `watchdog` bounds the step rate, `recoveries` collects the recovery
+    episodes, `progress` is told every step)."""
     simulator = scenario_simulator(built.diagram, scenario)
     built.monitor.attach(simulator, tracker, strict, watchdog, recoveries, progress)
     return simulator
 
 
 def scenario_simulator(diagram: Diagram, scenario: Scenario) -> Simulator:
-    """A Simulator of `diagram` with the scenario's SimulatorConfig (and no monitor: the
+    """A Simulator of `diagram` with the scenario's SimulatorConfig and no monitor (the
     STT loop's is :func:`make_simulator`'s; a baseline's diagram has none)."""
+    return make_diagram_simulator(diagram, config=scenario.simulator)
+
+
+def make_diagram_simulator(
+    diagram: Diagram,
+    monitor: InvariantMonitor | None = None,
+    tracker: InvariantTracker | None = None,
+    *,
+    config: SimulatorConfig | None = None,
+    accuracy: float | None = None,
+    max_step_size: float | None = None,
+    strict: bool = False,
+    also: Callable[[Context], EventStatus] | None = None,
+) -> Simulator:
+    """A Simulator of any Diagram (one's own, with :func:`stt_drake.AddStt` in it) set up
+    as a scenario run's: `config`, by default a scenario's SimulatorConfig (runge_kutta3
+    with error control, accuracy 1e-6, steps of at most 0.01 s), with `accuracy` and
+    `max_step_size` (s) replacing its values when given.
+
+    With `monitor` (an :class:`~stt_drake.systems.monitor.InvariantMonitor`, e.g.
+    ``AddStt(...).monitor``) and `tracker`, every guarantee is checked at every integrator
+    step into `tracker` (:meth:`~stt_drake.systems.monitor.InvariantMonitor.attach`;
+    `strict` stops at the first violation; :func:`guarantees_report` prints them). `also`,
+    a Simulator monitor of one's own, runs at every step too (with or without `monitor`;
+    the most severe status wins, :func:`stt_drake.systems.monitor.combine_monitors`).
+
+    Drake never takes a step longer than max_step_size, and a periodic event's time
+    (offset + k·period) can lie one rounding beyond the integrator's t + max_step (a sum of
+    steps): the event would then cost a ~1e-15 s step of its own (10 % of all steps of
+    omni_cluttered_50). The step bound gets a relative slack of :data:`MAX_STEP_SLACK`.
+    """
+    if (monitor is None) != (tracker is None):
+        raise ValueError("make_diagram_simulator: give `monitor` and `tracker` together")
+    config = default_simulator_config() if config is None else copy.copy(config)
+    if accuracy is not None:
+        config.accuracy = accuracy
+    if max_step_size is not None:
+        config.max_step_size = max_step_size
     simulator = Simulator(diagram)
-    ApplySimulatorConfig(scenario.simulator, simulator)
-    # Drake never takes a step longer than max_step_size, and a periodic event's time
-    # (offset + k·period) can lie one rounding beyond the integrator's t + max_step (a sum
-    # of steps): the event then costs a ~1e-15 s step of its own (10 % of all steps of
-    # omni_cluttered_50). A relative slack of MAX_STEP_SLACK lets the step reach it.
+    ApplySimulatorConfig(config, simulator)
     simulator.get_mutable_integrator().set_maximum_step_size(
-        scenario.simulator.max_step_size * (1.0 + MAX_STEP_SLACK)
+        config.max_step_size * (1.0 + MAX_STEP_SLACK)
     )
+    if monitor is not None:
+        monitor.attach(simulator, tracker, strict, also=also)
+    elif also is not None:
+        simulator.set_monitor(also)
     return simulator
 
 
@@ -263,7 +305,7 @@ def simulate(
         scenario.target_set_radius,
         final_target=log.target,
     )
-    t_reach = reach.final_entry_s
+    t_tube_in_target = reach.final_entry_s
     # Plant-specific metrics (none without a logged sample); a task sequence is reached
     # only when every task completed.
     plant_metrics = {}
@@ -271,7 +313,7 @@ def simulate(
         plant_metrics = built.plant_report(log)
     segments = plant_metrics.get("segments", [])
     reached = (
-        t_reach is not None
+        t_tube_in_target is not None
         and stop_reason is None
         and all(segment["completed"] for segment in segments)
     )
@@ -281,7 +323,10 @@ def simulate(
     metrics = RunMetrics(
         scenario=scenario.name,
         reached=reached,
-        t_reach=t_reach,
+        t_tube_in_target=t_tube_in_target,
+        t_output_in_target=output_reach_time(
+            log.t, log.output, log.target, scenario.target_set_radius
+        ),
         holds=tracker.holds,
         sim_time_s=sim_time,
         wall_time_s=wall_time,
@@ -295,7 +340,7 @@ def simulate(
         invariants=no_obstacle_notes(tracker.as_dict(), len(scenario.obstacles)),
         reach=reach.as_dict(),
         warnings=warnings,
-        assumptions=assumptions + separation_after_entry(log, t_reach),
+        assumptions=assumptions + separation_after_entry(log, t_tube_in_target),
         belief_discontinuities=belief_discontinuities(log),
         recovery=recoveries.episodes(),
         stalls=stalls,
@@ -314,9 +359,17 @@ def simulate(
     return RunResult(metrics, log, plant_summary)
 
 
-def write_outputs(result: RunResult, out_dir: Path, figures: bool = True) -> list[Path]:
+def write_outputs(
+    result: RunResult,
+    out_dir: Path,
+    figures: bool = True,
+    snapshot_times: Sequence[float] | None = None,
+) -> list[Path]:
     """Write metrics.json, log.npz and (optionally) the PNG figures into `out_dir` (no
     figures for a run that stopped before its second logged sample: no curve to draw).
+    The snapshots are taken at `snapshot_times` (s), by default at the start, each
+    guarantee's worst-margin time and the end
+    (:func:`stt_drake.plotting.save_run_figures`).
 
     metrics.json is strict JSON (:func:`stt_drake.runlog.strict_json`): a non-finite
     value (an infinite margin, σ = ∞) is ``null``, named in its ``"non_finite"`` object."""
@@ -327,7 +380,10 @@ def write_outputs(result: RunResult, out_dir: Path, figures: bool = True) -> lis
     if figures and log.samples >= 2:
         from stt_drake.plotting import save_run_figures
 
-        written += save_run_figures(log, out_dir)
+        invariants = result.metrics.invariants
+        written += save_run_figures(
+            log, out_dir, invariants=invariants, snapshot_times=snapshot_times
+        )
     return written
 
 
@@ -340,7 +396,13 @@ def _reach_lines(m: dict[str, Any]) -> list[str]:
     # A task sequence enters and leaves each task's own target set in turn.
     per_task = " (each task's target set)" if "segments" in m else ""
     if m["reached"]:
-        lines = [f"  reached the target set: yes, t_c = {m['t_reach']:.2f} s"]
+        line = (
+            "  reached the target set: yes, tube inside the target set at t_c = "
+            f"{m['t_tube_in_target']:.2f} s"
+        )
+        if m["t_output_in_target"] is not None:
+            line += f" (the output from {m['t_output_in_target']:.2f} s)"
+        lines = [line]
     else:
         lines = ["  reached the target set: NO"]
     if reach["first_entry_s"] is None:
@@ -427,16 +489,11 @@ def _track_lines(tracks: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
-def summary(result: RunResult) -> str:
-    """A short human-readable summary of a run."""
-    m = result.metrics
-    lines = [f"scenario {m['scenario']}"]
-    if m["stop_reason"]:
-        label = "STALLED" if m["stop_reason"].startswith("stall:") else "STOPPED EARLY"
-        lines.append(f"  {label}: {m['stop_reason']}")
-    lines += _reach_lines(m)
-    lines.append(f"  guarantees (worst margin, at time; holds if ≥ −{m['holds_tolerance']:g}):")
-    for name, record in m["invariants"].items():
+def guarantee_lines(invariants: dict[str, Any], tolerance: float) -> list[str]:
+    """The guarantees' lines of a run's summary: per guarantee (metrics.json's
+    `invariants`), holds or VIOLATED, its worst margin and when."""
+    lines = [f"  guarantees (worst margin, at time; holds if ≥ −{tolerance:g}):"]
+    for name, record in invariants.items():
         verdict = "holds" if record["holds"] else "VIOLATED"
         if "note" in record:
             lines.append(f"    {name:<26} {verdict:<8} — {record['note']}")
@@ -445,6 +502,28 @@ def summary(result: RunResult) -> str:
             f"    {name:<26} {verdict:<8} {record['worst_margin']:+.3e} at t = "
             f"{record['t_worst']:.2f} s"
         )
+    return lines
+
+
+def guarantees_report(tracker: InvariantTracker) -> str:
+    """What ``stt-drake run`` prints of the guarantees, for a run of one's own Diagram:
+    one line per guarantee (:data:`stt_drake.core.invariants.INVARIANT_NAMES`) with holds
+    or VIOLATED, its worst margin (m for the lengths, else a probability margin) and the
+    time it occurred, e.g. ``output_avoid_probability   holds    +7.412e-02 at t = 1.72
+    s``; a guarantee never evaluated reads ``+inf at t = 0.00 s``."""
+    lines = guarantee_lines(tracker.as_dict(), HOLDS_TOLERANCE)
+    return "\n".join(line.removeprefix("  ") for line in lines)  # the summary's indent
+
+
+def summary(result: RunResult) -> str:
+    """A short human-readable summary of a run."""
+    m = result.metrics
+    lines = [f"scenario {m['scenario']}"]
+    if m["stop_reason"]:
+        label = "STALLED" if m["stop_reason"].startswith("stall:") else "STOPPED EARLY"
+        lines.append(f"  {label}: {m['stop_reason']}")
+    lines += _reach_lines(m)
+    lines += guarantee_lines(m["invariants"], m["holds_tolerance"])
     lines += _story_lines(m)
     factor = m["realtime_factor"]
     lines.append(

@@ -239,7 +239,9 @@ class TrueObstacles(CampaignKind):
         member = family_confidence(CONFIDENCE, len(CHECKS) * loop.count * steps)
         model = loop.collision_probability()
         ordered = {check: model[check] for check in CHECKS}
-        return plot_collision_frequency(loop.t, loop.epsilon, counts, len(records), member, ordered)
+        return plot_collision_frequency(
+            loop.t, loop.epsilon, counts, len(records), member, ordered, summary["obstacles"]
+        )
 
 
 class Randomisation(CampaignKind):
@@ -344,7 +346,9 @@ class EndToEnd(CampaignKind):
         counts = collision_counts(records, len(epsilon), len(times))
         member = summary["procedure"]["member_confidence"]
         calibration = [o["calibration_95"] for o in summary["obstacles"]]
-        return plot_end_to_end(times, epsilon, counts, len(records), member, calibration)
+        return plot_end_to_end(
+            times, epsilon, counts, len(records), member, calibration, summary["obstacles"]
+        )
 
 
 #: Every campaign kind by name, in the order of ``--kind``'s choices.

@@ -29,7 +29,7 @@ def randomisation_run(
 
     Record: ``{"run", "seed", "status"}`` with status ``rejected`` (the draw breaks the
     paper's assumptions; `reason`), ``error`` (the simulation raised; `reason`) or
-    ``simulated`` (then `obstacles`, `reached`, `t_reach`, `holds`, `success`,
+    ``simulated`` (then `obstacles`, `reached`, `t_tube_in_target`, `holds`, `success`,
     `stop_reason`, `stalls` and `invariants` as in metrics.json, and the crowd metrics
     against the draw's true obstacles, :data:`stt_drake.campaign.crowd_metrics.CROWD_KEYS`, with
     comfort distance `comfort_distance` m).
@@ -53,7 +53,7 @@ def randomisation_run(
         "status": "simulated",
         "obstacles": len(scenario.obstacles),
         "reached": metrics.reached,
-        "t_reach": metrics.t_reach,
+        "t_tube_in_target": metrics.t_tube_in_target,
         "holds": metrics.holds,
         "success": result.success,
         "stop_reason": metrics.stop_reason,
@@ -134,11 +134,11 @@ def is_randomisation_record(record: dict[str, Any]) -> bool:
             and _is_number(entry.get("t_worst"))
         ):
             return False
-    t_reach = record.get("t_reach")
+    t_c = record.get("t_tube_in_target", "missing")  # a record from an older version: redone
     return (
         type(record.get("obstacles")) is int
         and all(isinstance(record.get(key), bool) for key in ("reached", "holds", "success"))
-        and (t_reach is None or _is_number(t_reach))
+        and (t_c is None or _is_number(t_c))
         and has_run_story(record)
         and is_crowd_record(record, record["obstacles"])
     )

@@ -248,8 +248,11 @@ def closed_loop_of(
     summary_path = out_dir / "closed_loop.json"
     if resume and given is None and path.exists() and summary_path.exists():
         try:
-            return ClosedLoop.load(path), json.loads(summary_path.read_text())
-        except (OSError, ValueError, KeyError) as error:  # re-simulated below
+            saved = json.loads(summary_path.read_text())
+            # a folder written by an older version names the tube's reach time t_reach
+            renamed = {"t_reach": "t_tube_in_target"}
+            return ClosedLoop.load(path), {renamed.get(k, k): v for k, v in saved.items()}
+        except (OSError, ValueError, KeyError, AttributeError) as error:  # re-simulated below
             print(
                 f"stt-drake campaign: {path} or {summary_path} unreadable ({error}); "
                 "simulating the closed loop again",
@@ -264,7 +267,7 @@ def closed_loop_of(
             "simulations": 1,
             "holds": result.metrics.holds,
             "reached": result.metrics.reached,
-            "t_reach": result.metrics.t_reach,
+            "t_tube_in_target": result.metrics.t_tube_in_target,
             "wall_time_s": result.metrics.wall_time_s,
         }
     else:

@@ -200,7 +200,7 @@ def _percentiles(values: Sequence[float]) -> dict[str, float] | None:
 
 def summarise_randomisation(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """Fraction of simulated draws where each guarantee held, t_c, worst margins, failures;
-    how many draws reached (`reach_rate`, `t_reach_percentiles` over them) and how many
+    how many draws reached (`reach_rate`, `t_tube_in_target_percentiles` over them) and how many
     ended in a stall (`stall_rate`: a stall lasting to the end)."""
     simulated = [r for r in records if r["status"] == "simulated"]
     failed = sorted((r for r in records if draw_failed(r)), key=lambda r: r["run"])
@@ -232,9 +232,13 @@ def summarise_randomisation(records: Sequence[dict[str, Any]]) -> dict[str, Any]
         "failed_runs": len(failed),
         "failure_rate_clopper_pearson_upper_99": upper,
         "guarantees": guarantees,
-        "t_reach": _distribution([r["t_reach"] for r in simulated if r["t_reach"] is not None]),
+        "t_tube_in_target": _distribution(
+            [r["t_tube_in_target"] for r in simulated if r["t_tube_in_target"] is not None]
+        ),
         "reach_rate": _fraction(simulated, "reached"),
-        "t_reach_percentiles": _percentiles([r["t_reach"] for r in simulated if r["reached"]]),
+        "t_tube_in_target_percentiles": _percentiles(
+            [r["t_tube_in_target"] for r in simulated if r["reached"]]
+        ),
         "stall_rate": (
             sum(stalled_to_end(r) for r in simulated) / len(simulated) if simulated else None
         ),
@@ -265,7 +269,7 @@ def _reach_and_stall_line(summary: dict[str, Any]) -> str:
         return "n/a" if value is None else f"{value:.3f}"
 
     line = f"  reached in {rate(summary['reach_rate'])} of simulated draws"
-    percentiles = summary["t_reach_percentiles"]
+    percentiles = summary["t_tube_in_target_percentiles"]
     if percentiles is not None:
         line += (
             f" (t_c p50 {percentiles['p50']:.2f} s, p90 {percentiles['p90']:.2f} s, "
@@ -314,7 +318,7 @@ def verdict_table_lines(summary: dict[str, Any]) -> list[str]:
         for check, record in (("output", o), ("tube", o["tube"])):
             more = ""
             if record["runs_to_certify"] is not None:
-                more = f" (≈{record['runs_to_certify']} runs would certify)"
+                more = f" (needs ≈{record['runs_to_certify']:,} runs)"
             lines.append(
                 f"  #{o['index']:<3} {check:<7} {o['epsilon']:<6.3g} "
                 f"{record['allowed_collision_probability']:<8.4g} "
@@ -342,11 +346,11 @@ def randomisation_lines(summary: dict[str, Any]) -> list[str]:
         )
         lines.append(f"    {name:<26} held in {text} of runs{worst}")
     lines.append(_reach_and_stall_line(summary))
-    t_reach = summary["t_reach"]
-    if t_reach["median"] is not None:
+    t_c = summary["t_tube_in_target"]
+    if t_c["median"] is not None:
         lines.append(
-            f"  t_c: median {t_reach['median']:.2f} s, 5-95 % [{t_reach['p05']:.2f}, "
-            f"{t_reach['p95']:.2f}] s, max {t_reach['max']:.2f} s"
+            f"  tube inside the target set at t_c: median {t_c['median']:.2f} s, 5-95 % "
+            f"[{t_c['p05']:.2f}, {t_c['p95']:.2f}] s, max {t_c['max']:.2f} s"
         )
     for failure in summary["failures"]:
         lines.append(

@@ -178,7 +178,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         default=list(COUNTS),
         help=f"obstacle counts (default {' '.join(map(str, COUNTS))})",
     )
-    parser.add_argument("--out", type=Path, default=Path("results/bench"), help="folder of the PNG")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path("results/bench"),
+        help="folder of the PNG (default: results/bench/)",
+    )
     parser.add_argument(
         "--profile",
         action="store_true",

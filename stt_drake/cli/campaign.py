@@ -28,10 +28,11 @@ from stt_drake.cli.main import (
     BadInputError,
     CommandError,
     announce_compilation,
+    default_out_folder,
     flag_message,
     resolve_scenario,
-    results_folder,
 )
+from stt_drake.cli.progress import wants_progress
 from stt_drake.core.crowd_metrics import DEFAULT_COMFORT_DISTANCE
 
 
@@ -93,8 +94,7 @@ def _campaign(args: argparse.Namespace) -> bool:
     )
     out_dir = args.out
     if out_dir is None:
-        stem = Path(args.scenario).stem
-        out_dir = results_folder(stem, "the scenario file's name") / f"campaign_{args.kind}"
+        out_dir = default_out_folder(args.scenario) / f"campaign_{args.kind}"
     announce_compilation()
     try:
         outcome = run_campaign(
@@ -104,7 +104,7 @@ def _campaign(args: argparse.Namespace) -> bool:
             scheduler=args.scheduler,
             resume=args.resume,
             chunk_size=args.chunk_size,
-            progress=not args.no_progress,
+            progress=wants_progress(args.quiet),
             figures=not args.no_figures,
             dask_timeout=args.dask_timeout,
         )
@@ -132,9 +132,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser = commands.add_parser(
         "campaign",
         help="Monte Carlo verification of the probabilistic guarantee",
-        description="Exit code 0: no obstacle's guarantee is violated (true-obstacle) / every "
-        "draw held every guarantee (randomisation); 1 otherwise, or the campaign stopped "
-        "(the message gives the command that resumes it); 2: bad input.",
+        description="Run N runs of one kind (--kind), write runs.jsonl, campaign.json and "
+        "a figure, and print each verdict: certified, inconclusive (with about how many runs "
+        "would certify) or violated.",
+        epilog="Exit code 0: no obstacle's guarantee is violated (true-obstacles, end-to-end) / "
+        "every draw held every guarantee (randomisation); 1 otherwise, or the campaign "
+        "stopped (the message gives the command that resumes it); 2: bad input.",
     )
     parser.add_argument("scenario", help="scenario YAML, or a packaged scenario's name")
     parser.add_argument(
@@ -144,8 +147,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "--kind",
         choices=KINDS,
         default="true-obstacles",
-        help="true-obstacles: sample true obstacle positions against one simulated closed "
-        "loop; randomisation: redraw random_obstacles per run and simulate each",
+        help="true-obstacles (default): sample the true obstacle positions around the "
+        "belief against one simulated closed loop (tests the probabilistic guarantee); "
+        "randomisation: redraw the scenario's random_obstacles per run, simulate each and "
+        "check every guarantee; end-to-end: simulate true obstacles, sensor, tracker and "
+        "controller per run (needs a perception section) and count collisions with the true "
+        "obstacles",
     )
     parser.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
     where = parser.add_mutually_exclusive_group()
@@ -158,7 +165,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="seconds to wait for the Dask scheduler, for a first worker, and at most without "
         f"any worker while runs are out (default {DASK_TIMEOUT_S:g})",
     )
-    parser.add_argument("--out", type=Path, default=None, help="output folder")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="output folder (default: results/<scenario name>/campaign_<kind>/)",
+    )
     parser.add_argument("--resume", action="store_true", help="continue the campaign in --out")
     parser.add_argument(
         "--true-obstacle-motion",
@@ -174,7 +186,14 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help=f"with --true-obstacle-motion ou: OU time constant τ (s, default {DEFAULT_TAU:g})",
     )
     parser.add_argument("--chunk-size", type=int, default=None, help="runs per task")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--quiet",
+        "--no-progress",
+        dest="quiet",
+        action="store_true",
+        help="no progress bar (runs done, failures, runs/s, time left; it is shown on a "
+        "terminal only)",
+    )
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figure")
     parser.add_argument(
         "--no-guide",

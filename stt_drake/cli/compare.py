@@ -1,6 +1,7 @@
-"""`stt-drake compare SCENARIO --controllers stt cbf apf --runs N --out DIR`: STT against
-the CBF-QP and potential-field baselines on one scenario (:mod:`stt_drake.compare`), or
-every controller on K randomised draws (``--draws K``, :mod:`stt_drake.compare_draws`).
+"""`stt-drake compare SCENARIO --runs N`: STT against the CBF-QP and potential-field
+baselines on one scenario (:mod:`stt_drake.compare`), or every controller on K randomised
+draws (``--draws K``, :mod:`stt_drake.compare_draws`). Controllers default to
+:data:`DEFAULT_CONTROLLERS`, the folder to ``results/<scenario name>_compare``.
 
 Exit codes: 0 the comparison finished (comparison.json, .md and .png written; the table is
 printed), 1 a campaign stopped, 2 bad input (found before any simulation).
@@ -17,9 +18,16 @@ from stt_drake.cli.main import (
     BadInputError,
     CommandError,
     announce_compilation,
+    check_out_folder,
+    default_out_folder,
     flag_message,
     resolve_scenario,
 )
+from stt_drake.cli.progress import CountProgress, wants_progress
+
+#: The controllers compared without ``--controllers``: the paper's reactive tube and both
+#: baselines (``stt-guided``, the tube under the guide, on request).
+DEFAULT_CONTROLLERS = ("stt", "cbf", "apf")
 
 
 @contextlib.contextmanager
@@ -43,6 +51,9 @@ def _compare(args: argparse.Namespace) -> bool:
     from stt_drake.compare import TABLE_FILE, compare, comparison_table
 
     scenario = resolve_scenario(args.scenario)  # a path, or a packaged scenario's name
+    if args.out is None:
+        args.out = default_out_folder(scenario, "_compare")
+        check_out_folder(args.out, "the output folder")
     if args.draws is not None:
         return _compare_draws(args, scenario)
     if args.runs is None:
@@ -54,6 +65,9 @@ def _compare(args: argparse.Namespace) -> bool:
         )
     with _exit_codes(args):
         announce_compilation()
+        progress = None
+        if wants_progress(args.quiet):  # a line per closed loop, then its campaign's bar
+            progress = CountProgress("compare", "closed loops", period=0.0)
         document = compare(
             scenario,
             args.controllers,
@@ -63,6 +77,7 @@ def _compare(args: argparse.Namespace) -> bool:
             scheduler=args.scheduler,
             model_error=args.model_error,
             solver=args.solver,
+            progress=progress,
             resume=args.resume,
             comfort_distance=args.comfort_distance,
         )
@@ -93,6 +108,7 @@ def _compare_draws(args: argparse.Namespace, scenario: Path) -> bool:
         )
     with _exit_codes(args):
         announce_compilation()
+        progress = CountProgress("compare", "draw runs") if wants_progress(args.quiet) else None
         document = compare_draws(
             scenario,
             args.controllers,
@@ -103,6 +119,7 @@ def _compare_draws(args: argparse.Namespace, scenario: Path) -> bool:
             solver=args.solver,
             resume=args.resume,
             comfort_distance=args.comfort_distance,
+            progress=progress,
         )
     print(draws_table(document["rows"]))
     print(f"  wrote {args.out / 'comparison.md'} and comparison.json, draws.jsonl there")
@@ -115,16 +132,18 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "compare",
         help="compare STT with the CBF-QP and potential-field baselines",
         description="Simulate each controller once on the scenario, run a true-obstacle "
-        "campaign against each closed loop, and write comparison.json/.md/.png. Exit code 0: "
-        "done; 1: a campaign stopped; 2: bad input.",
+        "campaign against each closed loop, and write comparison.json/.md/.png (with --draws: "
+        "every controller on K randomised draws, comparison.json/.md and draws.jsonl).",
+        epilog="Exit code 0: done; 1: a campaign stopped; 2: bad input.",
     )
     parser.add_argument("scenario", help="scenario YAML, or a packaged scenario's name")
     parser.add_argument(
         "--controllers",
         nargs="+",
-        required=True,
+        default=list(DEFAULT_CONTROLLERS),
         help="controllers to compare: stt (the reactive tube), stt-guided (the tube under the "
-        "guide), cbf (chance-constrained CBF-QP), apf (potential field)",
+        "guide), cbf (chance-constrained CBF-QP), apf (potential field); default: "
+        + " ".join(DEFAULT_CONTROLLERS),
     )
     parser.add_argument(
         "--runs", type=int, default=None, help="campaign runs per controller (one scenario)"
@@ -159,7 +178,17 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "obstacle, ‖y − O_j‖ − r_o_j, is below this (m, default 0.5: about the edge of Hall's "
         "intimate space)",
     )
-    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="output folder (default: results/<scenario name>_compare/)",
+    )
+    parser.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no progress lines (they are printed on a terminal only)",
+    )
     parser.add_argument(
         "--resume",
         action="store_true",

@@ -34,7 +34,7 @@ def write_diagram_pictures(dot_text: str, out_dir: Path, formats: tuple[str, ...
     if dot is None:
         raise FileNotFoundError(
             f"Graphviz's `dot` program is not installed, so only {dot_path} was written "
-            "(install the graphviz package, e.g. `apt-get install graphviz`)"
+            "(install the graphviz package: `sudo apt-get install graphviz`)"
         )
     for fmt in formats:
         picture = out_dir / f"diagram.{fmt}"
@@ -69,9 +69,17 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "diagram",
         help="draw the scenario's Drake Diagram (Graphviz SVG/PNG)",
         description="Writes diagram.dot, diagram.svg and diagram.png into the out folder.",
+        epilog="Exit code 0: written; 1: Graphviz's dot program is missing (only diagram.dot "
+        "is written); 2: bad input.",
     )
     add_scenario_arguments(parser)
-    parser.add_argument("--format", nargs="+", choices=["svg", "png"], default=["svg", "png"])
+    parser.add_argument(
+        "--format",
+        nargs="+",
+        choices=["svg", "png"],
+        default=["svg", "png"],
+        help="picture formats (default: svg png)",
+    )
     parser.add_argument(
         "--depth",
         type=int,

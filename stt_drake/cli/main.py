@@ -12,24 +12,23 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import difflib
 import importlib
 import os
 import platform
 import re
 import sys
 from collections.abc import Sequence
-from importlib.resources import files
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+from stt_drake.diagrams import packaged_scenarios as packaged_scenarios  # `list`'s
+from stt_drake.diagrams import scenario_file
 
 if TYPE_CHECKING:
     from stt_drake.config import Scenario
 
 #: The packaged scenario `stt-drake run` and `stt-drake diagram` use when none is given.
 DEFAULT_SCENARIO = "omni_hardware_case1"
-#: The package holding the scenarios (the repository's diagrams/ folder, shipped in the wheel).
-SCENARIO_PACKAGE = "stt_drake.diagrams"
 
 EXIT_SUCCESS, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
 
@@ -89,46 +88,18 @@ def flag_message(message: object) -> str:
     return _PARAMETER.sub(lambda match: PARAMETER_FLAGS[match.group(1)], str(message))
 
 
-def packaged_scenarios() -> dict[str, Path]:
-    """The scenarios shipped in the package: name (file stem) → file, sorted by name.
-
-    An installed wheel is unpacked (and an editable install maps the repository's
-    diagrams/ folder), so every resource is a real file the loader can open.
-    """
-    folder = Path(str(files(SCENARIO_PACKAGE)))
-    return {path.stem: path for path in sorted(folder.glob("*.yaml"))}
-
-
 def resolve_scenario(scenario: str | Path) -> Path:
-    """The scenario file `scenario` names: an existing path that is not a folder wins;
-    otherwise a packaged scenario's name (``omni_hardware_case1``, also with ``.yaml``).
-    A folder is never a scenario file, so a local folder named like a packaged scenario
-    (``./omni_hardware_case1/``) does not hide it.
+    """The scenario file `scenario` names: an existing file, or a packaged scenario's name
+    (:func:`stt_drake.diagrams.scenario_file`, the library's resolver).
 
     Raises:
-        BadInputError: neither an existing file nor a packaged name (a folder of that
-            name is said to be one); the message lists the packaged names closest to it.
+        BadInputError: neither an existing file nor a packaged name; the message lists the
+            packaged names closest to it.
     """
-    path = Path(scenario)
-    folder = path.is_dir()
-    if path.exists() and not folder:
-        return path
-    text = str(scenario)
-    packaged = packaged_scenarios()
-    name = text.removesuffix(".yaml")
-    if name in packaged:
-        return packaged[name]
-    if folder:
-        raise BadInputError(
-            f"stt-drake: {text}: is a folder, not a scenario file, and no packaged scenario "
-            "has that name (`stt-drake list` shows them all)"
-        )
-    close = difflib.get_close_matches(path.name.removesuffix(".yaml"), packaged, n=5, cutoff=0.5)
-    hint = f"; close packaged names: {', '.join(close)}" if close else ""
-    raise BadInputError(
-        f"stt-drake: {text}: no such scenario file, and no packaged scenario of that name"
-        f"{hint} (`stt-drake list` shows them all)"
-    )
+    try:
+        return scenario_file(scenario, listed_by="`stt-drake list`")
+    except FileNotFoundError as error:
+        raise BadInputError(f"stt-drake: {error}") from None
 
 
 def add_scenario_arguments(
@@ -186,6 +157,26 @@ def results_folder(name: str, what: str) -> Path:
             "folder name, no path separator, not . or ..); pass --out"
         )
     return Path("results") / name
+
+
+def default_out_folder(scenario_path: Path, suffix: str = "") -> Path:
+    """``results/<scenario name><suffix>``: the output folder a subcommand uses without
+    ``--out`` (the name `stt-drake run` uses: the file's `name` field, else its file name),
+    read from the file without drawing its random obstacles or checking its assumptions.
+
+    Raises:
+        BadInputError: the file cannot be read or parsed, or its name cannot name a folder
+            inside results/ (:func:`results_folder`).
+    """
+    from stt_drake.config import ScenarioError, ScenarioText, read_scenario_file
+
+    try:
+        text = read_scenario_file(scenario_path)
+        folder = str(scenario_path.resolve().parent)
+        name = ScenarioText(text, scenario_path.stem, folder).parse().name
+    except ScenarioError as error:
+        raise BadInputError(f"stt-drake: bad scenario {scenario_path}: {error}") from error
+    return results_folder(name + suffix, "the scenario's name")
 
 
 def check_out_folder(folder: Path, option: str = "--out") -> None:

@@ -94,6 +94,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "at the scenario's lcm.control_rate_hz (with perception, publishes the sensor's "
         "detections at its rate), paced at real time; ends at the scenario's duration or "
         "when the commands go stale.",
+        epilog="Exit code 0: the station ran to its end (a stop is said in its output and "
+        "station.json); 2: bad input.",
     )
     _add_common(station)
     station.set_defaults(handler=_station)
@@ -109,7 +111,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     controller.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     controller.set_defaults(handler=_controller)
     merge = commands.add_parser(
-        "merge-logs", help="join a station's log into the controller's run log"
+        "merge-logs",
+        help="join a station's log into the controller's run log",
+        epilog="Exit code 0: merged; 2: bad input (a folder without its metrics.json or "
+        "station.json).",
     )
     merge.add_argument("controller_dir", type=Path, help="the controller's output folder")
     merge.add_argument("station_dir", type=Path, help="the station's output folder")

@@ -30,6 +30,21 @@ def check_seed_argument(seed: int | None, option: str = "--seed") -> None:
         )
 
 
+def parse_times(text: str, duration: float, option: str = "--snapshots") -> list[float]:
+    """The comma-separated times (s) of `text`, each in [0, `duration`]; BadInputError
+    otherwise."""
+    try:
+        times = [float(part) for part in text.split(",")]
+    except ValueError:
+        times = []
+    if not times or not all(0.0 <= time <= duration for time in times):
+        raise BadInputError(
+            f"stt-drake: {option}: give comma-separated times in seconds within the run, "
+            f"0 to {duration:g} (e.g. 1.5,3.0) (got {text!r})"
+        )
+    return times
+
+
 def _run(args: argparse.Namespace) -> bool:
     from stt_drake.run import simulate, summary, write_outputs
 
@@ -41,6 +56,7 @@ def _run(args: argparse.Namespace) -> bool:
     scenario, out_dir = load_scenario_arguments(args, seed=args.seed, strict=args.strict)
     if args.no_guide:
         scenario.guide = None
+    snapshots = None if args.snapshots is None else parse_times(args.snapshots, scenario.duration)
     strict = True if args.strict else None
     announce_compilation()
     if args.meshcat:  # drawn live in Meshcat while it runs; the recording is replay.html
@@ -57,7 +73,7 @@ def _run(args: argparse.Namespace) -> bool:
     else:
         progress = RunProgress(scenario.duration) if wants_progress(args.quiet) else None
         result, replay = simulate(scenario, strict=strict, progress=progress), None
-    written = write_outputs(result, out_dir, figures=not args.no_figures)
+    written = write_outputs(result, out_dir, figures=not args.no_figures, snapshot_times=snapshots)
     if replay is not None:
         written.append(replay)
     print(summary(result))
@@ -85,6 +101,13 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "--strict", action="store_true", help="stop at the first violated guarantee"
     )
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    parser.add_argument(
+        "--snapshots",
+        default=None,
+        metavar="TIMES",
+        help="times in seconds for snapshots.png, comma-separated (e.g. 1.5,3.0); default: "
+        "the start, the time of each guarantee's worst margin and the end",
+    )
     parser.add_argument(
         "--quiet",
         action="store_true",

@@ -285,9 +285,9 @@ def segment_report(
 ) -> list[dict[str, Any]]:
     """Reach-and-stay per task segment, recomputed from the logged target η(t) and tube.
 
-    A segment is a maximal run of samples with one target. Its t_reach is the first sample
-    from which Γ(t) ⊂ T_k (‖c − η_k‖ + r ≤ R_T) holds until the segment ends; a segment is
-    completed when that time exists. Targets that never became active are listed as not
+    A segment is a maximal run of samples with one target. Its `t_tube_in_target` is the
+    first sample from which Γ(t) ⊂ T_k (‖c − η_k‖ + r ≤ R_T) holds until the segment ends; a
+    segment is completed when that time exists. Targets that never became active are listed as not
     completed, so the list always has one entry per target in `targets`.
     """
     inside = tube_in_target(center, radius, task_target, target_set_radius)
@@ -298,9 +298,8 @@ def segment_report(
     for k, target in enumerate(targets):
         entry: dict[str, Any] = {"index": k, "target": np.asarray(target, float).tolist()}
         if k >= len(starts):
-            report.append(
-                {**entry, "t_start": None, "t_end": None, "t_reach": None, "completed": False}
-            )
+            never = {"t_start": None, "t_end": None, "t_tube_in_target": None, "completed": False}
+            report.append({**entry, **never})
             continue
         first, stop = int(starts[k]), int(ends[k])
         segment_inside = inside[first:stop]
@@ -314,7 +313,7 @@ def segment_report(
                 **entry,
                 "t_start": float(t[first]),
                 "t_end": float(t[stop - 1]),
-                "t_reach": reach,
+                "t_tube_in_target": reach,
                 "completed": reach is not None and same_target,
             }
         )
@@ -326,7 +325,7 @@ def summarize_arm(metrics: Mapping[str, Any]) -> list[str]:
     none without them."""
     lines = []
     for segment in metrics.get("segments", []):
-        reach = segment["t_reach"]
+        reach = segment["t_tube_in_target"]
         lines.append(
             f"    segment {segment['index']} → {np.round(segment['target'], 3).tolist()}: "
             + (f"t_c = {reach:.2f} s" if reach is not None else "NOT completed")

@@ -289,9 +289,9 @@ def test_randomisation_reports_fractions_and_keeps_failing_draws(randomised):
         assert record["worst_margin"] == min(margins)
         held = np.mean([r["invariants"][name]["holds"] for r in simulated])
         assert record["held_fraction"] == pytest.approx(held)
-    t_reach = [r["t_reach"] for r in simulated if r["t_reach"] is not None]
-    assert summary["t_reach"]["median"] == pytest.approx(np.median(t_reach))
-    assert summary["t_reach"]["max"] == max(t_reach)
+    t_c = [r["t_tube_in_target"] for r in simulated if r["t_tube_in_target"] is not None]
+    assert summary["t_tube_in_target"]["median"] == pytest.approx(np.median(t_c))
+    assert summary["t_tube_in_target"]["max"] == max(t_c)
     assert (out / "randomisation.png").stat().st_size > 0
     # Reaching and stalling: every simulated record carries its stop reason and stalls.
     for record in simulated:
@@ -301,8 +301,8 @@ def test_randomisation_reports_fractions_and_keeps_failing_draws(randomised):
         named = (record["stop_reason"] or "").startswith("stall:")
         assert named == (stalled_to_end and not record["reached"])
     assert summary["reach_rate"] == reached
-    reached_times = [r["t_reach"] for r in simulated if r["reached"]]
-    assert summary["t_reach_percentiles"] == {
+    reached_times = [r["t_tube_in_target"] for r in simulated if r["reached"]]
+    assert summary["t_tube_in_target_percentiles"] == {
         key: pytest.approx(np.percentile(reached_times, q))
         for key, q in (("p50", 50), ("p90", 90), ("p99", 99))
     }
@@ -325,7 +325,7 @@ def test_a_failing_draw_replays_from_its_yaml_and_from_its_seed(randomised, tmp_
         metrics = json.loads((tmp_path / label / "metrics.json").read_text())
         assert metrics["scenario"] == "random_small"
         assert metrics["reached"] == failing["reached"]
-        assert metrics["t_reach"] == failing["t_reach"]
+        assert metrics["t_tube_in_target"] == failing["t_tube_in_target"]
         assert metrics["invariants"] == failing["invariants"], label
 
 

@@ -14,7 +14,7 @@ import pytest
 
 from stt_drake.cli.main import main
 
-#: The keys of every comparison.json row (issue 15), written out here rather than imported
+#: The keys of every comparison.json row, written out here rather than imported
 #: from the code under test.
 ROW_KEYS = {
     "controller",
@@ -23,8 +23,9 @@ ROW_KEYS = {
     "worst_collision_frequency",
     "clopper_pearson_lower_99",
     "clopper_pearson_upper_99",
-    "certified",
-    "t_reach_s",
+    "verdict",
+    "runs_to_certify",
+    "t_output_in_target_s",
     "path_length_m",
     "min_clearance_m",
     "step_us_median",
@@ -110,9 +111,12 @@ def test_compare_writes_one_row_per_controller(compared):
             <= 1.0
         )
         assert row["step_us_median"] > 0.0 and row["path_length_m"] > 0.0
-        assert isinstance(row["certified"], bool)
-        assert row["t_reach_s"] is None or 0.0 <= row["t_reach_s"] <= 6.0
-        assert (row["t_reach_s"] is not None) or row["success_rate"] == 0.0
+        assert row["verdict"] in ("certified", "inconclusive", "violated")
+        needed = row["runs_to_certify"]
+        assert needed is None or (row["verdict"] == "inconclusive" and needed > 50)
+        t_in = row["t_output_in_target_s"]
+        assert t_in is None or 0.0 <= t_in <= 6.0
+        assert (t_in is not None) or row["success_rate"] == 0.0
     cbf = rows[1]
     assert type(cbf["qp_infeasible_count"]) is int and cbf["qp_infeasible_count"] >= 0
     assert rows[0]["qp_infeasible_count"] is None and rows[2]["qp_infeasible_count"] is None
@@ -121,7 +125,8 @@ def test_compare_writes_one_row_per_controller(compared):
         campaign = json.loads((out / controller / "campaign.json").read_text())
         assert campaign["runs"] == 50
     table = (out / "comparison.md").read_text()
-    assert table.count("\n| ") == 3 and "| cbf |" in table
+    assert table.startswith("# Controller comparison: compare_short\n")
+    assert table.count("\n| ") == 4 and "| cbf |" in table  # the header and a row each
     assert "| stt |" in done.stdout
     assert "Polishing" not in done.stdout  # OSQP's C code prints nothing (polishing off)
     assert (out / "comparison.png").stat().st_size > 10_000

@@ -53,7 +53,8 @@ def test_run_default_scenario_writes_contract_files(tmp_path):
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["scenario"] == "omni_hardware_case1"
     assert metrics["reached"] is True
-    assert isinstance(metrics["t_reach"], float) and 0 < metrics["t_reach"] < metrics["sim_time_s"]
+    t_c = metrics["t_tube_in_target"]
+    assert isinstance(t_c, float) and 0 < t_c < metrics["sim_time_s"]
     assert metrics["sim_time_s"] == pytest.approx(25.0)
     assert metrics["wall_time_s"] > 0
     assert set(metrics["invariants"]) == INVARIANT_KEYS
@@ -65,10 +66,10 @@ def test_run_default_scenario_writes_contract_files(tmp_path):
     # A normal end: no stop reason, one entry into the target set, nothing broken or jumping.
     assert metrics["stop_reason"] is None
     assert metrics["reach"] == {
-        "first_entry_s": metrics["t_reach"],
-        "entries_s": [metrics["t_reach"]],
+        "first_entry_s": metrics["t_tube_in_target"],
+        "entries_s": [metrics["t_tube_in_target"]],
         "exits_s": [],
-        "final_entry_s": metrics["t_reach"],
+        "final_entry_s": metrics["t_tube_in_target"],
     }
     for key in ("warnings", "assumptions", "belief_discontinuities", "recovery", "stalls"):
         assert metrics[key] == [], key
@@ -76,6 +77,15 @@ def test_run_default_scenario_writes_contract_files(tmp_path):
     log = np.load(out / "log.npz")
     assert log["output"].shape == (len(log["t"]), 2)
     assert log["t"][-1] == pytest.approx(25.0)
+    # The output's final entry: the first logged time from which ‖y − η‖ ≤ R_T holds to the
+    # end; y stays in the tube, so it is inside no later than the tube.
+    inside = np.linalg.norm(log["output"] - log["target"], axis=1) <= log["target_set_radius"]
+    assert inside[-1] and not inside[0]
+    entry = log["t"][np.flatnonzero(~inside)[-1] + 1]
+    assert metrics["t_output_in_target"] == entry <= metrics["t_tube_in_target"]
+    assert f"tube inside the target set at t_c = {metrics['t_tube_in_target']:.2f} s" in (
+        completed.stdout
+    )
 
 
 def _write(tmp_path: Path, text: str) -> Path:
@@ -120,7 +130,7 @@ def test_unreached_target_exits_1(tmp_path, capsys):
     assert code == 1
     assert "reached the target set: NO" in out and "FAILURE" in out
     metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
-    assert metrics["reached"] is False and metrics["t_reach"] is None
+    assert metrics["reached"] is False and metrics["t_tube_in_target"] is None
     assert all(record["holds"] for record in metrics["invariants"].values())
 
 

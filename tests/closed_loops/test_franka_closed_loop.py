@@ -77,16 +77,16 @@ def _check_run(result, scenario) -> None:
             + log["radius"][first:stop]
             - radius_t
         )
-        assert segment["completed"] and segment["t_reach"] is not None
-        after = t >= segment["t_reach"]
-        assert np.all(gap[after] <= HOLDS_TOLERANCE)  # Γ(t) ⊂ T_k from t_reach on
+        assert segment["completed"] and segment["t_tube_in_target"] is not None
+        after = t >= segment["t_tube_in_target"]
+        assert np.all(gap[after] <= HOLDS_TOLERANCE)  # Γ(t) ⊂ T_k from t_tube_in_target on
         assert gap[~after][-1:].size == 0 or gap[~after][-1] > HOLDS_TOLERANCE
         assert np.all(
             np.linalg.norm(log["output"][first:stop][after] - targets[k], axis=1) <= radius_t
         )
         if k + 1 < len(targets):  # switched only after Γ ⊂ T_k held for hold_time
-            assert t[-1] - segment["t_reach"] >= hold - 2 * scenario.log_period
-    assert metrics["t_reach"] == pytest.approx(metrics["segments"][-1]["t_reach"])
+            assert t[-1] - segment["t_tube_in_target"] >= hold - 2 * scenario.log_period
+    assert metrics["t_tube_in_target"] == pytest.approx(metrics["segments"][-1]["t_tube_in_target"])
     # Joint position, velocity and torque limits (published FR3 numbers), every sample.
     q, v = log["joint_state"][:, :7], log["joint_state"][:, 7:]
     assert np.all((q > POSITION_LOWER) & (q < POSITION_UPPER))

@@ -22,8 +22,8 @@ DRAW_ROW_KEYS = {
     "stall_rate",
     "timeout_rate",
     "unsafe_rate",
-    "t_reach_p50_s",
-    "t_reach_p90_s",
+    "t_output_in_target_p50_s",
+    "t_output_in_target_p90_s",
     "path_length_mean_m",
     "min_clearance_m",
     "step_us_median",
@@ -180,6 +180,6 @@ def test_compare_has_a_guided_row_on_one_scenario(tmp_path):
     )  # fmt: skip
     assert code == 0
     rows = {r["controller"]: r for r in json.loads((out / "comparison.json").read_text())["rows"]}
-    assert rows["stt"]["success_rate"] == 0.0 and rows["stt"]["t_reach_s"] is None
+    assert rows["stt"]["success_rate"] == 0.0 and rows["stt"]["t_output_in_target_s"] is None
     assert rows["stt-guided"]["success_rate"] == 1.0
     assert rows["stt-guided"]["worst_collision_frequency"] <= 0.1  # ε = 0.9

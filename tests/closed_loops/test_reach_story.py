@@ -301,7 +301,7 @@ def test_closed_loop_run_records_the_broken_assumption_and_the_warnings(
     assert (explicit["obstacle"], explicit["t"]) == (0, 14.0)
     assert explicit["value"] == pytest.approx(0.9915, abs=1e-3)
     t_c = metrics["reach"]["final_entry_s"]
-    assert t_c == metrics["t_reach"] and metrics["reach"]["exits_s"] == []
+    assert t_c == metrics["t_tube_in_target"] and metrics["reach"]["exits_s"] == []
     assert logged["obstacle"] == 0 and t_c <= logged["t"] <= 14.0
     log = np.load(tmp_path / "out" / "log.npz")
     after = log["t"] >= t_c

@@ -39,7 +39,8 @@ def _non_finite_metrics() -> RunMetrics:
     return RunMetrics(
         scenario="hostile",
         reached=False,
-        t_reach=None,
+        t_tube_in_target=None,
+        t_output_in_target=None,
         holds=False,
         sim_time_s=1.5,
         wall_time_s=0.0,
@@ -72,7 +73,7 @@ def test_metrics_record_is_the_metrics_json_document():
     reads as a mapping of those keys."""
     metrics = _non_finite_metrics()
     document = metrics.as_dict()
-    assert list(document)[:3] == ["scenario", "reached", "t_reach"]
+    assert list(document)[:4] == ["scenario", "reached", "t_tube_in_target", "t_output_in_target"]
     assert list(document)[-2:] == ["tracks", "shape"]
     assert list(metrics) == list(document) and len(metrics) == len(document)
     assert metrics["holds"] is metrics.holds is False
@@ -91,7 +92,8 @@ def test_metrics_json_is_strict_and_names_each_non_finite_value(tmp_path):
     assert written["invariants"]["output_in_tube"]["worst_margin"] is None
     assert written["obstacles"][0]["sigma"] is None
     assert written["step_rate"] == {"max_window_steps_per_s": None, "window_steps": 7}
-    assert written["t_reach"] is None  # a plain null: not a non-finite number
+    assert written["t_tube_in_target"] is None  # a plain null: not a non-finite number
+    assert written["t_output_in_target"] is None
     assert written["non_finite"] == {
         "/realtime_factor": "inf",
         "/invariants/output_in_tube/worst_margin": "inf",

@@ -28,11 +28,12 @@ from stt_drake.systems.visualizer import PUBLISH_PERIOD
 from tests.conftest import INVARIANT_KEYS
 
 ROOT = Path(__file__).resolve().parents[2]
-#: The metrics.json contract (README), the same for every case study.
+#: The metrics.json contract (docs/guide/outputs.md), the same for every case study.
 METRICS_KEYS = {
     "scenario",
     "reached",
-    "t_reach",
+    "t_tube_in_target",
+    "t_output_in_target",
     "holds",
     "sim_time_s",
     "wall_time_s",
@@ -236,7 +237,8 @@ def test_cli_runs_the_uav_scenario_with_the_2d_contract_and_a_replay(tmp_path):
     assert set(metrics) == METRICS_KEYS
     assert metrics["tracks"] == []  # no tracker: no track records
     assert metrics["scenario"] == "uav_paper" and metrics["reached"] is True
-    assert 0 < metrics["t_reach"] < metrics["sim_time_s"] == pytest.approx(40.0)
+    assert 0 < metrics["t_tube_in_target"] < metrics["sim_time_s"] == pytest.approx(40.0)
+    assert 0 < metrics["t_output_in_target"] <= metrics["t_tube_in_target"]
     assert set(metrics["invariants"]) == INVARIANT_KEYS
     assert all(record["holds"] for record in metrics["invariants"].values())
     assert len(metrics["obstacles"]) == 4

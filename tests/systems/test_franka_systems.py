@@ -177,7 +177,7 @@ def test_segment_report_reconstructs_reach_times_and_flags_unfinished_tasks():
     center[4:7] += 0.5  # segment 1 enters T_1 at t = 0.7
     radius = np.full(10, 0.05)
     report = segment_report(t, task_target, center, radius, 0.1, targets)
-    assert [s["t_reach"] for s in report] == [pytest.approx(0.1), pytest.approx(0.7), None]
+    assert [s["t_tube_in_target"] for s in report] == [pytest.approx(0.1), pytest.approx(0.7), None]
     assert [s["completed"] for s in report] == [True, True, False]
     assert report[2]["t_start"] is None  # target 2 never became active
 
