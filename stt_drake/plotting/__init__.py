@@ -11,19 +11,23 @@ works headless (no backend is touched) and displays in notebooks as-is. All figu
 one visual language, :data:`PALETTE`.
 
 The figures live in submodules — :mod:`~stt_drake.plotting.run2d`,
-:mod:`~stt_drake.plotting.run3d`, :mod:`~stt_drake.plotting.margins`,
+:mod:`~stt_drake.plotting.run3d`, :mod:`~stt_drake.plotting.margins` (with its
+per-obstacle panels in :mod:`~stt_drake.plotting.obstacles`),
 :mod:`~stt_drake.plotting.arm`, with the shared palette, σ colours and obstacle level
-sets in :mod:`~stt_drake.plotting.style` and :func:`save_run_figures` in
+sets in :mod:`~stt_drake.plotting.style`, the snapshot times (the worst-margin times) in
+:mod:`~stt_drake.plotting.instants` and :func:`save_run_figures` in
 :mod:`~stt_drake.plotting.save` — and are re-exported here. The figures of the
 commands above a run are drawn here too, from plain data (their callers sit above plotting
 in the import layers): :mod:`~stt_drake.plotting.campaign` (one per campaign kind),
-:mod:`~stt_drake.plotting.compare` (``comparison.png``) and
-:mod:`~stt_drake.plotting.bench` (the tube step's scaling).
+:mod:`~stt_drake.plotting.compare` (``comparison.png``), both with the intervals and
+verdicts of :mod:`~stt_drake.plotting.certify`, and :mod:`~stt_drake.plotting.bench` (the
+tube step's scaling).
 """
 
 from __future__ import annotations
 
 from stt_drake.plotting.arm import plot_joint_torques
+from stt_drake.plotting.instants import snapshot_times, worst_margin_times
 from stt_drake.plotting.margins import plot_margins
 from stt_drake.plotting.run2d import plot_snapshots, plot_tube_3d
 from stt_drake.plotting.run3d import plot_snapshots_3d
@@ -46,4 +50,6 @@ __all__ = [
     "plot_tube_3d",
     "reach_time",
     "save_run_figures",
+    "snapshot_times",
+    "worst_margin_times",
 ]

@@ -12,11 +12,10 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Circle, Patch
 from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
+from stt_drake.plotting.instants import panel_grid, snapshot_plan, snapshot_title
 from stt_drake.plotting.style import (
     _MANY_OBSTACLES,
     PALETTE,
-    _default_times,
-    _nearest_index,
     _obstacle_colors,
     _obstacle_discs,
     _sigma_colorbar,
@@ -24,6 +23,8 @@ from stt_drake.plotting.style import (
 )
 from stt_drake.runlog import RunLog
 
+#: Snapshot panels a row holds.
+_COLUMNS = 4
 #: Alpha of the {q̂ ≤ p_d} and {q̂ ≤ ε} discs.
 _LIGHT_ALPHA, _DARK_ALPHA = 0.14, 0.38
 
@@ -64,7 +65,11 @@ def _draw_anisotropic_levels(
             ax.contourf(x, y, q, levels=[-1.0, float(level)], colors=[color], alpha=alpha, zorder=1)
 
 
-def plot_snapshots(log: Mapping[str, Any], times: Sequence[float] | None = None) -> Figure:
+def plot_snapshots(
+    log: Mapping[str, Any],
+    times: Sequence[float] | None = None,
+    invariants: Mapping[str, Mapping[str, Any]] | None = None,
+) -> Figure:
     """Top view of a 2D run at a few instants, one panel per instant.
 
     Each panel shows, for every obstacle, the discs {q̂_j ≤ p_d_j} (light) and
@@ -77,16 +82,21 @@ def plot_snapshots(log: Mapping[str, Any], times: Sequence[float] | None = None)
     Args:
         log: a run log (see :mod:`stt_drake.plotting`) with dimension 2.
         times: instants in seconds (each snapped to the nearest sample). Default: the
-            start, the middle of the reach (halfway to the reach time, or to the end if the
-            tube never settles in the target set) and the end.
+            start, the time of each guarantee's worst margin and the end
+            (:func:`~stt_drake.plotting.instants.snapshot_plan`); a panel's title names the
+            guarantees whose worst margin it shows.
+        invariants: ``metrics.json``'s ``invariants`` (the worst-margin times); None:
+            found in the logged margins.
 
     Returns:
-        The figure: one axes per instant plus a σ colourbar (when there are obstacles).
+        The figure: one axes per instant (at most four a row) plus a σ colourbar (when
+        there are obstacles).
     """
     run = RunLog.of(log)
     if run.dimension != 2:
         raise ValueError(f"plot_snapshots draws 2D runs; this run has dimension {run.dimension}")
-    indices = [_nearest_index(run.t, time) for time in (times or _default_times(run))]
+    plan = snapshot_plan(run, times, invariants)
+    indices = [index for index, _ in plan]
     discs = [_obstacle_discs(run, index) for index in indices]
     # Limits cover the ε discs; the wider p_d discs may run off the panel.
     extents = [
@@ -96,10 +106,13 @@ def plot_snapshots(log: Mapping[str, Any], times: Sequence[float] | None = None)
     limits = _snapshot_limits(run, indices, np.array(extents).reshape(len(indices), run.count))
     norm, cmap = _obstacle_colors(run)
 
-    panels = len(indices)
-    fig = Figure(figsize=(4.2 * panels + 1.2, 4.8), layout="constrained")
-    axes = fig.subplots(1, panels, sharex=True, sharey=True, squeeze=False)[0]
-    for ax, index, disc in zip(axes, indices, discs, strict=True):
+    rows, columns = panel_grid(len(indices), _COLUMNS)
+    fig = Figure(figsize=(4.2 * columns + 1.2, 4.6 * rows + 1.4), layout="constrained")
+    grid = fig.subplots(rows, columns, sharex=True, sharey=True, squeeze=False)
+    for ax in grid.ravel()[len(indices) :]:
+        ax.remove()
+    axes = grid.ravel()[: len(indices)]
+    for ax, (index, names), disc in zip(axes, plan, discs, strict=True):
         for j in np.flatnonzero(run.active[index]):
             color = cmap(norm(run.sigma[index, j]))
             center = run.mean[index, j]
@@ -112,9 +125,7 @@ def plot_snapshots(log: Mapping[str, Any], times: Sequence[float] | None = None)
                         Circle(center, light, fc=color, alpha=_LIGHT_ALPHA, lw=0, zorder=1)
                     )
                 if np.isfinite(dark):
-                    ax.add_patch(
-                        Circle(center, dark, fc=color, alpha=_DARK_ALPHA, lw=0, zorder=1)
-                    )
+                    ax.add_patch(Circle(center, dark, fc=color, alpha=_DARK_ALPHA, lw=0, zorder=1))
             ax.add_patch(
                 Circle(center, run.obstacle_radius[index, j], fc="none", ec=color, lw=1.4, zorder=3)
             )
@@ -143,10 +154,11 @@ def plot_snapshots(log: Mapping[str, Any], times: Sequence[float] | None = None)
         ax.set_xlim(limits[0])
         ax.set_ylim(limits[1])
         ax.set_aspect("equal", adjustable="box")
-        ax.set_title(f"t = {run.t[index]:.1f} s")
+        ax.set_title(snapshot_title(run.t[index], names), fontsize=10)
         ax.set_xlabel("x (m)")
         ax.grid(alpha=0.25, lw=0.5)
-    axes[0].set_ylabel("y (m)")
+    for ax in grid[:, 0]:
+        ax.set_ylabel("y (m)")
 
     sample = cmap(0.6)
     handles = [

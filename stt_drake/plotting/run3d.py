@@ -11,16 +11,18 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
+from stt_drake.plotting.instants import panel_grid, snapshot_plan, snapshot_title
 from stt_drake.plotting.style import (
     _MANY_OBSTACLES,
     PALETTE,
-    _default_times,
-    _nearest_index,
     _obstacle_colors,
     _sigma_colorbar,
     level_set_radius,
 )
 from stt_drake.runlog import RunLog
+
+#: Snapshot panels a row holds.
+_COLUMNS = 3
 
 
 def _sphere_surface(
@@ -130,7 +132,11 @@ def _main_direction(run: RunLog) -> np.ndarray:
     return axes[0]
 
 
-def plot_snapshots_3d(log: Mapping[str, Any], times: Sequence[float] | None = None) -> Figure:
+def plot_snapshots_3d(
+    log: Mapping[str, Any],
+    times: Sequence[float] | None = None,
+    invariants: Mapping[str, Mapping[str, Any]] | None = None,
+) -> Figure:
     """A 3D run (the UAV) at a few instants, one 3D panel per instant.
 
     Each panel shows every obstacle as the sphere B(μ_j, r_o_j) at its mean, coloured by
@@ -147,26 +153,30 @@ def plot_snapshots_3d(log: Mapping[str, Any], times: Sequence[float] | None = No
     Args:
         log: a run log (see :mod:`stt_drake.plotting`) with dimension 3.
         times: instants in seconds (each snapped to the nearest sample). Default: the
-            start, halfway to the reach time (or to the end) and the end.
+            start, the time of each guarantee's worst margin and the end, as in
+            :func:`~stt_drake.plotting.run2d.plot_snapshots`.
+        invariants: ``metrics.json``'s ``invariants`` (the worst-margin times); None:
+            found in the logged margins.
 
     Returns:
-        The figure: one 3D axes per instant plus a σ colourbar (when there are obstacles).
+        The figure: one 3D axes per instant (at most three a row) plus a σ colourbar (when
+        there are obstacles).
     """
     run = RunLog.of(log)
     if run.dimension != 3:
         raise ValueError(f"plot_snapshots_3d draws 3D runs; this run has dimension {run.dimension}")
-    indices = [_nearest_index(run.t, time) for time in (times or _default_times(run))]
+    plan = snapshot_plan(run, times, invariants)
     limits = _snapshot_cube(run)
     norm, cmap = _obstacle_colors(run)
     many = run.count > _MANY_OBSTACLES
     resolution, surface_alpha = (6, 0.5) if many else (10, 0.6)
     elevation, azimuth = _side_view(np.zeros(3), _main_direction(run))
 
-    panels = len(indices)
-    fig = Figure(figsize=(5.2 * panels + 1.2, 5.8), layout="constrained")
-    axes = [fig.add_subplot(1, panels, i + 1, projection="3d") for i in range(panels)]
+    rows, columns = panel_grid(len(plan), _COLUMNS)
+    fig = Figure(figsize=(5.2 * columns + 1.2, 5.2 * rows + 0.8), layout="constrained")
+    axes = [fig.add_subplot(rows, columns, i + 1, projection="3d") for i in range(len(plan))]
     level_sets: dict[tuple[float, float, float], float] = {}
-    for ax, index in zip(axes, indices, strict=True):
+    for ax, (index, names) in zip(axes, plan, strict=True):
         for j in np.flatnonzero(run.active[index]):
             color = cmap(norm(run.sigma[index, j]))
             mean = run.mean[index, j]
@@ -215,7 +225,7 @@ def plot_snapshots_3d(log: Mapping[str, Any], times: Sequence[float] | None = No
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
         ax.set_zlabel("z (m)")
-        ax.set_title(f"t = {run.t[index]:.1f} s")
+        ax.set_title(snapshot_title(run.t[index], names), fontsize=10)
         ax.view_init(elev=elevation, azim=azimuth)
 
     handles = [

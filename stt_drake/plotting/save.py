@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -13,13 +14,23 @@ from stt_drake.plotting.run3d import plot_snapshots_3d
 from stt_drake.runlog import RunLog
 
 
-def save_run_figures(log: Mapping[str, Any], out_dir: str | Path, dpi: int = 120) -> list[Path]:
+def save_run_figures(
+    log: Mapping[str, Any],
+    out_dir: str | Path,
+    dpi: int = 120,
+    invariants: Mapping[str, Mapping[str, Any]] | None = None,
+    snapshot_times: Sequence[float] | None = None,
+) -> list[Path]:
     """Write the run's figures as PNGs into `out_dir` (created if needed).
 
     2D runs: ``snapshots.png``, ``tube_3d.png`` and ``margins.png``; 3D runs:
     ``snapshots.png`` (:func:`plot_snapshots_3d`) and ``margins.png``; other dimensions:
     ``margins.png`` only. Runs of the arm (logs with `requested_torque`) also get
     ``joint_torques.png`` (:func:`plot_joint_torques`).
+
+    The snapshots are taken at `snapshot_times` (s) when given, else at the start, each
+    guarantee's worst-margin time (from `invariants`, ``metrics.json``'s record, or the
+    logged margins without it) and the end.
 
     Returns:
         The paths written, in that order.
@@ -28,10 +39,14 @@ def save_run_figures(log: Mapping[str, Any], out_dir: str | Path, dpi: int = 120
     out.mkdir(parents=True, exist_ok=True)
     run = RunLog.of(log)  # once: an npz re-reads every member from its zip on each access
     builders: list[tuple[str, Any]] = []
+    chosen = {"times": snapshot_times, "invariants": invariants}
     if run.dimension == 2:
-        builders += [("snapshots.png", plot_snapshots), ("tube_3d.png", plot_tube_3d)]
+        builders += [
+            ("snapshots.png", partial(plot_snapshots, **chosen)),
+            ("tube_3d.png", plot_tube_3d),
+        ]
     elif run.dimension == 3:
-        builders.append(("snapshots.png", plot_snapshots_3d))
+        builders.append(("snapshots.png", partial(plot_snapshots_3d, **chosen)))
     builders.append(("margins.png", plot_margins))
     if "requested_torque" in run:  # a torque-controlled arm
         builders.append(("joint_torques.png", plot_joint_torques))

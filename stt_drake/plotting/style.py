@@ -81,17 +81,6 @@ def reach_time(log: Mapping[str, Any]) -> float | None:
     return tube_reach_time(run.t, run.center, run.radius, run.target, run.target_set_radius)
 
 
-def _default_times(run: RunLog) -> list[float]:
-    t_reach = reach_time(run)
-    t0, t_end = float(run.t[0]), float(run.t[-1])
-    middle = 0.5 * (t0 + t_reach) if t_reach is not None and t_reach > t0 else 0.5 * (t0 + t_end)
-    return [t0, middle, t_end]
-
-
-def _nearest_index(t: np.ndarray, time: float) -> int:
-    return int(np.argmin(np.abs(t - time)))
-
-
 def _obstacle_discs(run: RunLog, index: int) -> np.ndarray:
     """(m, 2) radii of {q̂ ≤ p_d} and {q̂ ≤ ε} for every obstacle at sample `index`."""
     return np.array(
