@@ -179,9 +179,10 @@ def _motion(motion: dict) -> tuple[np.ndarray, float]:
 
 
 def admissible_period(data: dict) -> float:
-    """README "Admissible period", from the file's numbers: the longest h with, for every
-    obstacle j, 2·v̄_j·h ≤ r_o + r_min and 2·s̄_j·h ≤ σ_min,j/2, and the start certified for
-    the first period: Q^h_j(s) > ε_j with Δ = v̄h, γ = σ/(σ − s̄h) − 1, R = r_o + r_min,
+    """docs/guide/real_time.md, "The admissible period", from the file's numbers: the
+    longest h with, for every obstacle j, 2·v̄_j·h ≤ r_o + r_min and 2·s̄_j·h ≤ σ_min,j/2,
+    and the start certified for the first period: Q^h_j(s) > ε_j with Δ = v̄h,
+    γ = σ/(σ − s̄h) − 1, R = r_o + r_min,
     a = ‖s − μ_j(0)‖, Q^h = P(‖Z'‖ ≥ (R + γ(a + Δ + R))/σ), Z' ~ N(max(a − Δ, 0)/σ·e, I)
     (scipy's noncentral χ², bisection where the start rule binds)."""
     assert not data.get("random_obstacles"), "refused files must list their obstacles"

@@ -25,9 +25,9 @@ consistent again, ν/n averages below 1 at the raised s and the scale relaxes
 geometrically, ρ times slower than it rose; it never goes below 1 (the model's own q).
 With ρ < 1 the scale settles where E[ν] ≈ 0.8·n (for n = 2, ρ = 0.7), not at n: a
 deliberately conservative filter (a consistent model's scale hovers a few times above 1),
-which buys calibration on manoeuvring obstacles (measured: README, "Perception in the
-loop"). q_base is the model's density, or ``density_floor`` if that is larger (a model with
-q = 0 has nothing to scale), and s_max = ``density_ceiling``/q_base.
+which buys calibration on manoeuvring obstacles (measured: docs/guide/perception.md, "A
+tracker that checks itself"). q_base is the model's density, or ``density_floor`` if that
+is larger (a model with q = 0 has nothing to scale), and s_max = ``density_ceiling``/q_base.
 
 With ``adaptive`` off the test still runs (the NIS is reported) and the filter is exactly
 the constant-velocity filter of :mod:`stt_drake.core.tracking`.

@@ -349,7 +349,7 @@ def test_a_relative_file_is_found_beside_the_scenario_or_in_the_current_folder(
 
 
 def test_a_one_megabyte_csv_loads(tmp_path):
-    """Correctness only; the load time is measured, not asserted (README)."""
+    """Correctness only; the load time is measured, not asserted (docs/guide/crowds.md)."""
     rng = np.random.default_rng(1)
     times = np.round(np.arange(0.0, 60.0, 0.1), 1)
     walks = {

@@ -71,7 +71,12 @@ def test_pages_exist(site):
         "index.html",
         "design.html",
         "api.html",
+        "guide/getting_started.html",
         "guide/guarantees.html",
+        "guide/outputs.html",
+        "guide/own_diagram.html",
+        "guide/robot.html",
+        "guide/development.html",
         "guide/real_time.html",
         "guide/full_covariances.html",
         "guide/perception.html",
@@ -183,3 +188,12 @@ def test_no_page_points_outside_the_repository():
     for path in [*DOCS.rglob("*.md"), DOCS / "conf.py", *(DOCS / "_ext").glob("*.py")]:
         text = path.read_text(encoding="utf-8")
         assert "/work/" not in text and "../shared" not in text and "DESIGN.md" not in text, path
+
+
+def test_api_overview_names_exactly_the_exported_names():
+    """The API page's overview of the top level names each name of `stt_drake.__all__`, and
+    only those."""
+    text = (DOCS / "api.md").read_text(encoding="utf-8")
+    overview = text.split("## The top level", 1)[1].split("```{eval-rst}", 1)[0]
+    named = set(re.findall(r"`([A-Za-z_]\w*)`", overview))
+    assert named == set(stt_drake.__all__)
