@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from stt_drake.bench.floor import bench_drake_floor
 from stt_drake.bench.guide import bench_guide_plans, bench_guided_loop
 from stt_drake.bench.kernels import (
     COUNTS,
@@ -48,7 +49,9 @@ def run_benchmark(
     field, by "2d"/"3d" and count), ``worst_case_tube_step_us`` and
     ``worst_case_speedup_vs_baseline`` (no pruning possible), ``controller_us`` ("stage1",
     "stage2"), ``realtime_factor`` (by scenario; "not available" if its file is missing),
-    ``derivative_evaluations_per_s``, ``targets`` (each with its value and whether it is
+    ``derivative_evaluations_per_s``, ``over_drake_floor`` (each loop's wall µs per
+    derivative evaluation over :func:`stt_drake.bench.floor.bench_drake_floor`'s, measured
+    in the same run), ``targets`` (each with its value and whether it is
     met), ``details`` (spreads and everything else), ``machine``, ``plot``.
     """
     load_before = os.getloadavg()
@@ -62,6 +65,7 @@ def run_benchmark(
         loops[name], loops[fixed_rate_name(name)], ratios[name] = (
             bench_fixed_rate_against_continuous(name, loop_repeats, loop_duration)
         )
+    floor = bench_drake_floor(loop_repeats)
     plot = save_scaling_figure(tube, counts, out_dir / "tube_step_scaling.png")
 
     def table(field: str, key: str) -> dict[str, dict[str, float]]:
@@ -105,7 +109,13 @@ def run_benchmark(
             name: loop.get("derivative_evaluations_per_s", "not available")
             for name, loop in loops.items()
         },
+        "over_drake_floor": {
+            name: 1e6 / loop["derivative_evaluations_per_s"] / floor["us_per_derivative_evaluation"]
+            for name, loop in loops.items()
+            if loop["available"]
+        },
         "details": {
+            "drake_floor": floor,
             "tube_step": tube,
             "anisotropic_tube_step": anisotropic,
             "tracker_update": tracking,

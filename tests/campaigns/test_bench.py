@@ -119,6 +119,11 @@ def test_bench_json_report(tmp_path, capsys):
             assert loop["sim_time_s"] == pytest.approx(1.0)
             assert result["realtime_factor"][name] == loop["realtime_factor"] > 0.0
             assert loop["derivative_evaluations_per_s"] > 0.0
+            # the loop's systems do work the floor's do not: more wall time per evaluation
+            per_evaluation = 1e6 / loop["derivative_evaluations_per_s"]
+            floor = result["details"]["drake_floor"]["us_per_derivative_evaluation"]
+            assert result["over_drake_floor"][name] == pytest.approx(per_evaluation / floor)
+            assert result["over_drake_floor"][name] > 1.0
         else:
             assert result["realtime_factor"][name] == "not available"
         fixed = loops[bench.fixed_rate_name(name)]  # the same loop with a 100 Hz tube
@@ -150,3 +155,16 @@ def test_profile_lists_functions_by_own_time():
     assert any("stt_drake" in row["function"] or ".py:" in row["function"]
                for row in profile["top"])
     assert not bench.profile_closed_loop("no_such_scenario")["available"]
+
+
+def test_the_drake_floor_times_the_omni_loops_shape():
+    """Five Python systems in a chain, the tube's and the plant's with continuous state,
+    integrated at the fixed step: µs per derivative evaluation, spread ordered."""
+    from stt_drake.bench.floor import DIMENSION, STEP, _floor_diagram, bench_drake_floor
+
+    diagram = _floor_diagram()
+    assert len(diagram.GetSystems()) == 5
+    assert diagram.CreateDefaultContext().num_continuous_states() == DIMENSION + 3
+    floor = bench_drake_floor(repeats=2, duration=50 * STEP)
+    assert 0.0 < floor["min"] <= floor["us_per_derivative_evaluation"] <= floor["max"]
+    assert floor["repeats"] == 2 and floor["systems"] == 5
