@@ -12,9 +12,11 @@ from __future__ import annotations
 
 import inspect
 import math
+import re
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -46,28 +48,11 @@ from stt_drake import (
 from stt_drake.config import Obstacle as SchemaObstacle
 from stt_drake.core.rules import RuleError
 
-#: The README's example, as it is printed there.
-README_EXAMPLE = """
-from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import Integrator
-
-from stt_drake import (AddStt, ConstantVelocity, FunnelController, InvariantTracker, Obstacle,
-                       TubeLaw, default_nu, guarantees_report, make_diagram_simulator)
-
-builder = DiagramBuilder()
-robot = builder.AddSystem(Integrator(2))  # ẏ = u: a first-order robot, starts at (0, 0)
-crosser = Obstacle(motion=ConstantVelocity(start=[1.5, 1.0], velocity=[0.0, -0.25]),
-                   radius=0.3, sigma=0.1, epsilon=0.9, p_d=0.999)  # σ in m, P(avoid) ≥ 0.9
-law = TubeLaw(target=[3.0, 0.0], k1=0.6, k2=0.4, k3=0.4, r_min=0.15, r_max=0.4,
-              nu=default_nu(1, 0.15), max_center_speed=1.0)
-stt = AddStt(builder, law, FunnelController(kappa=[5.0]), [0.0, 0.0], obstacles=[crosser])
-builder.Connect(stt.control, robot.get_input_port())
-builder.Connect(robot.get_output_port(), stt.plant_state)  # what the controller reads
-builder.Connect(robot.get_output_port(), stt.output)  # y, what the guarantees are about
-tracker = InvariantTracker()
-make_diagram_simulator(builder.Build(), stt.monitor, tracker).AdvanceTo(8.0)
-print(guarantees_report(tracker))
-"""
+ROOT = Path(__file__).resolve().parents[2]
+#: The README's example, read from README.md (its first Python block).
+README_EXAMPLE = re.search(
+    r"^```python\n(.*?)^```", (ROOT / "README.md").read_text(encoding="utf-8"), re.M | re.S
+)[1]
 
 EPSILON = 0.9
 
