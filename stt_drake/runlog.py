@@ -367,6 +367,13 @@ class RunLog(Mapping[str, np.ndarray]):
         return self._per_sample("obstacle_radius")
 
     @cached_property
+    def mean_clearance(self) -> np.ndarray:
+        """(T, m) ‖y − μ_j‖ − r_o_j (m): the output's distance to the surface of obstacle j
+        at its mean (negative inside it); NaN where slot j held no track."""
+        distance = np.linalg.norm(self.output[:, None, :] - self.mean, axis=2)
+        return np.where(self.active, distance - self.obstacle_radius, np.nan)
+
+    @cached_property
     def epsilon(self) -> np.ndarray:
         """(T, m) required avoidance probabilities ε_j."""
         return self._per_sample("epsilon")

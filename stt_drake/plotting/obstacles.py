@@ -39,20 +39,13 @@ def collision_probability(run: RunLog) -> np.ndarray:
     return np.where(run.active, probability, np.nan)
 
 
-def surface_distance(run: RunLog) -> np.ndarray:
-    """(T, m) ‖y − μ_j‖ − r_o_j (m): the output's distance to the surface of obstacle j at
-    its mean (negative inside it); NaN where slot j held no track."""
-    distance = np.linalg.norm(run.output[:, None, :] - run.mean, axis=2) - run.obstacle_radius
-    return np.where(run.active, distance, np.nan)
-
-
 def critical_obstacles(run: RunLog) -> np.ndarray:
     """Indices (ascending) of the at most :data:`SHOWN_MAX` obstacles with the highest peak
     collision probability of the output, ties broken by the closest approach."""
     if run.count <= SHOWN_MAX:
         return np.arange(run.count)
     peak = np.nan_to_num(np.nanmax(collision_probability(run), axis=0, initial=0.0), nan=0.0)
-    closest = np.nan_to_num(np.nanmin(surface_distance(run), axis=0, initial=np.inf), nan=np.inf)
+    closest = np.nan_to_num(np.nanmin(run.mean_clearance, axis=0, initial=np.inf), nan=np.inf)
     order = np.lexsort((closest, -peak))  # the last key sorts first
     return np.sort(order[:SHOWN_MAX])
 
@@ -114,7 +107,7 @@ def draw_obstacle_distance(ax: Any, run: RunLog, shown: np.ndarray) -> None:
     ax.axhline(0.0, color=PALETTE["violation"], lw=0.9, zorder=2)
     if run.count == 0:
         return
-    distance = surface_distance(run)
+    distance = run.mean_clearance
     hidden = _draw_others(ax, run.t, distance, shown)
     handles = []
     for j, color in zip(shown, obstacle_line_colors(shown.size), strict=True):
