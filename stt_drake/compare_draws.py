@@ -65,6 +65,7 @@ from stt_drake.campaign.crowd_metrics import (
 from stt_drake.campaign.folder import (
     CHECKSUM_KEY,
     check_same_spec,
+    is_number,
     record_checksum,
     record_line,
 )
@@ -188,10 +189,6 @@ def draws_task(
     ]
 
 
-def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
-
-
 def _is_draw_record(record: Any, seed: int) -> bool:
     """Whether a record read back from draws.jsonl has :func:`draw_record`'s shape and
     the seed of its draw."""
@@ -208,8 +205,8 @@ def _is_draw_record(record: Any, seed: int) -> bool:
     return (
         record.get("status") == "simulated"
         and all(isinstance(record.get(k), bool) for k in ("reached", "stalled", "unsafe"))
-        and (t_in is None or _is_number(t_in))
-        and all(_is_number(record.get(k)) for k in ("path_length_m", "min_clearance_m", "step_us"))
+        and (t_in is None or is_number(t_in))
+        and all(is_number(record.get(k)) for k in ("path_length_m", "min_clearance_m", "step_us"))
         and all(k in record for k in DRAW_CROWD_KEYS)
         and is_crowd_record({**record, "time_to_goal_s": t_in})
     )

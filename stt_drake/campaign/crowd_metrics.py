@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from stt_drake.campaign.folder import is_number
 from stt_drake.core.crowd_metrics import DEFAULT_COMFORT_DISTANCE, crowd_metrics
 
 if TYPE_CHECKING:
@@ -91,10 +92,6 @@ def crowd_record(
     return {key: record[key] for key in CROWD_KEYS}
 
 
-def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
-
-
 def is_crowd_record(record: dict[str, Any], count: int | None = None) -> bool:
     """Whether `record` has none of :data:`CROWD_KEYS` (a record written before them), or
     all of them with their types (`count` obstacles, when given)."""
@@ -111,12 +108,12 @@ def is_crowd_record(record: dict[str, Any], count: int | None = None) -> bool:
         and all(isinstance(f, bool) for f in flags)
         and isinstance(epsilon, list)
         and len(epsilon) == len(flags)
-        and all(_is_number(e) for e in epsilon)
+        and all(is_number(e) for e in epsilon)
         and (count is None or len(flags) == count)
         and record["collided"] == any(flags)
-        and all(v is None or _is_number(v) for v in optional)
-        and all(_is_number(record[k]) for k in ("min_distance_m", "comfort_violation_s"))
-        and _is_number(record["path_length_m"])
+        and all(v is None or is_number(v) for v in optional)
+        and all(is_number(record[k]) for k in ("min_distance_m", "comfort_violation_s"))
+        and is_number(record["path_length_m"])
     )
 
 

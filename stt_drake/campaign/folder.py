@@ -119,6 +119,12 @@ def check_same_spec(
             )
 
 
+def is_number(value: Any) -> bool:
+    """Whether a value read back from a record is a JSON number (an int or a float, not a
+    bool, which Python counts as an int)."""
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
 def _is_index(value: Any) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value >= 0
 

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 from stt_drake.campaign.crowd_metrics import crowd_record, is_crowd_record
+from stt_drake.campaign.folder import is_number
 from stt_drake.core.crowd_metrics import DEFAULT_COMFORT_DISTANCE
 from stt_drake.core.invariants import INVARIANT_NAMES
 
@@ -73,19 +74,15 @@ def randomisation_task(
     return [randomisation_run(schema, index, seed, comfort_distance) for index, seed in runs]
 
 
-def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
-
-
 def is_stall_record(stall: Any) -> bool:
     """Whether `stall` has the shape of a metrics.json `stalls` entry
     (:func:`stt_drake.core.progress.find_stalls`)."""
     return (
         isinstance(stall, dict)
-        and all(_is_number(stall.get(key)) for key in ("start_s", "detected_s", "distance_m"))
-        and (stall.get("end_s") is None or _is_number(stall.get("end_s")))
+        and all(is_number(stall.get(key)) for key in ("start_s", "detected_s", "distance_m"))
+        and (stall.get("end_s") is None or is_number(stall.get("end_s")))
         and isinstance(stall.get("position"), list)
-        and all(_is_number(x) for x in stall["position"])
+        and all(is_number(x) for x in stall["position"])
         and isinstance(stall.get("ended"), str)
     )
 
@@ -130,15 +127,15 @@ def is_randomisation_record(record: dict[str, Any]) -> bool:
         if not (
             isinstance(entry, dict)
             and isinstance(entry.get("holds"), bool)
-            and _is_number(entry.get("worst_margin"))
-            and _is_number(entry.get("t_worst"))
+            and is_number(entry.get("worst_margin"))
+            and is_number(entry.get("t_worst"))
         ):
             return False
     t_c = record.get("t_tube_in_target", "missing")  # a record from an older version: redone
     return (
         type(record.get("obstacles")) is int
         and all(isinstance(record.get(key), bool) for key in ("reached", "holds", "success"))
-        and (t_c is None or _is_number(t_c))
+        and (t_c is None or is_number(t_c))
         and has_run_story(record)
         and is_crowd_record(record, record["obstacles"])
     )
