@@ -90,7 +90,7 @@ from stt_drake.core.crowd_metrics import (
     output_reach_time,
 )
 from stt_drake.core.rules import RuleError
-from stt_drake.core.statistics import CERTIFIED, INCONCLUSIVE, VIOLATED
+from stt_drake.core.statistics import CERTIFIED, INCONCLUSIVE, VIOLATED, verdict_words
 from stt_drake.run import scenario_simulator, simulate
 from stt_drake.runlog import RunLog, write_json
 from stt_drake.systems.baselines import PotentialFieldController
@@ -145,8 +145,7 @@ class ControllerRun:
 
 def min_clearance(log: RunLog) -> float:
     """min over samples and active obstacles of ‖y − μ_j‖ − r_o_j (m); +∞ without any."""
-    gap = np.linalg.norm(log.output[:, None, :] - log.mean, axis=2) - log.obstacle_radius
-    gap = gap[log.active]
+    gap = log.mean_clearance[log.active]
     return float(gap.min()) if gap.size else math.inf
 
 
@@ -557,17 +556,12 @@ def markdown_document(
     )
 
 
-def verdict_cell(row: dict[str, Any]) -> str:
-    """The verdict as the table says it: ``inconclusive (needs ≈N runs)`` when the data
-    gives N."""
-    if row["verdict"] == INCONCLUSIVE and row["runs_to_certify"] is not None:
-        return f"{INCONCLUSIVE} (needs ≈{row['runs_to_certify']:,} runs)"
-    return row["verdict"]
-
-
 def comparison_table(rows: Sequence[dict[str, Any]]) -> str:
     """The rows as a markdown table (what the command prints, and comparison.md's body)."""
-    return markdown_table([{**row, "verdict": verdict_cell(row)} for row in rows], _COLUMNS)
+    worded = [
+        {**row, "verdict": verdict_words(row["verdict"], row["runs_to_certify"])} for row in rows
+    ]
+    return markdown_table(worded, _COLUMNS)
 
 
 def comparison_markdown(document: dict[str, Any]) -> str:

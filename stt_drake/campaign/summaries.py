@@ -24,6 +24,7 @@ from stt_drake.core.statistics import (
     clopper_pearson,
     family_confidence,
     simultaneous_verdict,
+    verdict_words,
 )
 
 #: Confidence of every reported interval (jointly, over the whole family of tests).
@@ -316,15 +317,13 @@ def verdict_table_lines(summary: dict[str, Any]) -> list[str]:
     ]
     for o in summary["obstacles"]:
         for check, record in (("output", o), ("tube", o["tube"])):
-            more = ""
-            if record["runs_to_certify"] is not None:
-                more = f" (needs ≈{record['runs_to_certify']:,} runs)"
             lines.append(
                 f"  #{o['index']:<3} {check:<7} {o['epsilon']:<6.3g} "
                 f"{record['allowed_collision_probability']:<8.4g} "
                 f"{record['worst_collision_frequency']:<11.5f} {record['t_worst']:<8.2f}  "
                 f"{record['clopper_pearson_lower_99']:<11.5f} "
-                f"{record['clopper_pearson_upper_99']:<11.5f} {record['verdict']}{more}"
+                f"{record['clopper_pearson_upper_99']:<11.5f} "
+                f"{verdict_words(record['verdict'], record['runs_to_certify'])}"
             )
     return lines
 

@@ -117,6 +117,16 @@ class Verdict:
     runs_to_certify: int | None
 
 
+def verdict_words(verdict: str, runs_to_certify: int | None) -> str:
+    """A verdict as the reports, tables and figures print it: ``certified``,
+    ``violated``, ``inconclusive``, or ``inconclusive (needs ≈1,444 runs)`` when the
+    inconclusive verdict's data says how many runs would certify it
+    (:attr:`Verdict.runs_to_certify`)."""
+    if verdict == INCONCLUSIVE and runs_to_certify is not None:
+        return f"{verdict} (needs ≈{runs_to_certify:,} runs)"
+    return verdict
+
+
 def simultaneous_verdict(
     counts: np.ndarray,
     trials: int,

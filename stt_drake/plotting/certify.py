@@ -16,7 +16,13 @@ from typing import Any
 
 import numpy as np
 
-from stt_drake.core.statistics import CERTIFIED, INCONCLUSIVE, VIOLATED, clopper_pearson
+from stt_drake.core.statistics import (
+    CERTIFIED,
+    INCONCLUSIVE,
+    VIOLATED,
+    clopper_pearson,
+    verdict_words,
+)
 
 #: The colour of each verdict's words.
 VERDICT_COLORS = {CERTIFIED: "#2ca02c", INCONCLUSIVE: "#ff7f0e", VIOLATED: "#d62728"}
@@ -65,15 +71,13 @@ def draw_frequency(
 
 
 def verdict_text(record: Mapping[str, Any]) -> str:
-    """ "certified", "violated", or "inconclusive (≈N runs would certify)" / "inconclusive
-    (no run count would certify at the frequency seen)"."""
-    verdict = record["verdict"]
-    if verdict != INCONCLUSIVE:
-        return verdict
+    """The verdict's words (:func:`stt_drake.core.statistics.verdict_words`: ``certified``,
+    ``violated``, ``inconclusive (needs ≈N runs)``), or "inconclusive (no run count would
+    certify at the frequency seen)"."""
     needed = record.get("runs_to_certify")
-    if needed is None:
-        return f"{verdict} (no run count would certify at the frequency seen)"
-    return f"{verdict} (≈{needed} runs would certify)"
+    if record["verdict"] == INCONCLUSIVE and needed is None:
+        return f"{INCONCLUSIVE} (no run count would certify at the frequency seen)"
+    return verdict_words(record["verdict"], needed)
 
 
 def uncertified_note(runs: int, records: Sequence[Mapping[str, Any]]) -> str | None:

@@ -71,7 +71,7 @@ def test_few_runs_note_that_they_cannot_certify_and_draw_error_bars():
             np.all(np.asarray(line.get_ydata()) == 1.0 - CAMPAIGN_EPSILON[j]) for line in ax.lines
         )
         words = " ".join(text.get_text() for text in ax.texts)
-        assert f"≈{verdicts[j]['runs_to_certify']} runs would certify" in words
+        assert f"needs ≈{verdicts[j]['runs_to_certify']:,} runs" in words
         assert f"obstacle {j}" in ax.get_title(loc="left")
 
 
