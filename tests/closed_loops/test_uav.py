@@ -291,6 +291,18 @@ def test_quadrotor_follows_its_equations_of_motion(mass):
         )
 
 
+def test_quadrotor_is_made_of_compiled_drake_systems():
+    """No Python callback per derivative evaluation: every subsystem is a pydrake primitive,
+    and the default state is the given initial position and velocity."""
+    plant = Quadrotor(1.0, 0.2, 9.81, np.array([1.0, 2.0, 3.0]), np.array([0.5, 0.0, -0.5]))
+    kinds = {type(system).__module__ for system in plant.GetSystems()}
+    assert kinds == {"pydrake.systems.primitives"}, kinds
+    context = plant.CreateDefaultContext()
+    np.testing.assert_array_equal(
+        context.get_continuous_state_vector().CopyToVector(), [1.0, 2.0, 3.0, 0.5, 0.0, -0.5]
+    )
+
+
 def test_quadrotor_outputs_do_not_feed_through_inputs():
     """The loop plant_state → controller → control must not be an algebraic loop."""
     plant = Quadrotor(1.0, 0.2, 9.81, np.zeros(3), np.zeros(3))

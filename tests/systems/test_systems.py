@@ -895,6 +895,17 @@ def test_omni_outputs_do_not_feed_through():
             )
 
 
+def test_omni_position_is_read_without_python():
+    """Only the kinematics (the state and its derivatives) are Python: the position the
+    controller and the monitor read at every step comes from a compiled MatrixGain."""
+    robot = OmniRobot(NOMINAL_WHEEL, NOMINAL_BASE, np.array([0.5, -0.5]), initial_heading=0.3)
+    kinds = {system.get_name(): type(system).__module__ for system in robot.GetSystems()}
+    assert kinds == {
+        "kinematics": "stt_drake.systems.plants.omni",
+        "position": "pydrake.systems.primitives",
+    }
+
+
 def test_wheel_matrix_rows():
     wheel, base = 0.06, 0.25
     matrix = wheel_matrix(wheel, base)

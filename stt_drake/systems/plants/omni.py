@@ -20,8 +20,11 @@ from pydrake.systems.framework import (
     Context,
     ContinuousState,
     ContinuousStateIndex,
+    Diagram,
+    DiagramBuilder,
     LeafSystem,
 )
+from pydrake.systems.primitives import MatrixGain
 
 #: Wheel mounting angles around the base (rad).
 WHEEL_ANGLES = np.array([0.0, 2.0 * np.pi / 3.0, 4.0 * np.pi / 3.0])
@@ -41,10 +44,9 @@ def rotation(heading: float) -> np.ndarray:
     return np.array([[c, -s], [s, c]])
 
 
-class OmniRobot(LeafSystem):
-    """State [x, y, ψ]; inputs `wheel_speeds` (3, rad/s) and `disturbance` (2, world-frame
-    velocity, m/s); outputs `output` = y = (x, y), `plant_state` = x_1 = (x, y) (the stage
-    states the controller measures) and `pose` = (x, y, ψ)."""
+class OmniKinematics(LeafSystem):
+    """The true kinematics: state [x, y, ψ]; inputs `wheel_speeds` (3, rad/s) and
+    `disturbance` (2, world-frame velocity, m/s); output `pose` = (x, y, ψ)."""
 
     def __init__(
         self,
@@ -54,21 +56,12 @@ class OmniRobot(LeafSystem):
         initial_heading: float = 0.0,
     ) -> None:
         super().__init__()
-        self._twist_from_wheels = np.linalg.inv(wheel_matrix(wheel_radius, base_radius))
-        self._twist_rows = tuple(tuple(row) for row in self._twist_from_wheels.tolist())
+        twist_from_wheels = np.linalg.inv(wheel_matrix(wheel_radius, base_radius))
+        self._twist_rows = tuple(tuple(row) for row in twist_from_wheels.tolist())
         self.DeclareContinuousState(BasicVector(np.append(initial_position, initial_heading)))
         self._wheel_port = self.DeclareVectorInputPort("wheel_speeds", 3)
         self._disturbance_port = self.DeclareVectorInputPort("disturbance", 2)
-        state_only = {self.xc_ticket()}
-        for name, size in (("output", 2), ("plant_state", 2)):
-            self.DeclareVectorOutputPort(
-                name, size, self._calc_position, prerequisites_of_calc=state_only
-            )
         self.DeclareStateOutputPort("pose", ContinuousStateIndex(0))
-
-    def _calc_position(self, context: Context, output: BasicVector) -> None:
-        x = context.get_continuous_state_vector()
-        output.SetFromVector([x.GetAtIndex(0), x.GetAtIndex(1)])
 
     def DoCalcTimeDerivatives(  # noqa: N802 (Drake API)
         self, context: Context, derivatives: ContinuousState
@@ -82,6 +75,38 @@ class OmniRobot(LeafSystem):
         derivatives.get_mutable_vector().SetFromVector(
             [c * v_x - s * v_y + d_x, s * v_x + c * v_y + d_y, yaw_rate]
         )
+
+
+class OmniRobot(Diagram):
+    """State [x, y, ψ]; inputs `wheel_speeds` (3, rad/s) and `disturbance` (2, world-frame
+    velocity, m/s); outputs `output` = y = (x, y), `plant_state` = x_1 = (x, y) (the stage
+    states the controller measures) and `pose` = (x, y, ψ).
+
+    :class:`OmniKinematics` holds the state; (x, y) is selected from its pose by Drake's
+    compiled `MatrixGain`, so reading the position never calls Python."""
+
+    def __init__(
+        self,
+        wheel_radius: float,
+        base_radius: float,
+        initial_position: np.ndarray,
+        initial_heading: float = 0.0,
+    ) -> None:
+        super().__init__()
+        builder = DiagramBuilder()
+        kinematics = builder.AddNamedSystem(
+            "kinematics",
+            OmniKinematics(wheel_radius, base_radius, initial_position, initial_heading),
+        )
+        position = builder.AddNamedSystem("position", MatrixGain(np.eye(2, 3)))
+        pose = kinematics.GetOutputPort("pose")
+        builder.Connect(pose, position.get_input_port())
+        for name in ("wheel_speeds", "disturbance"):
+            builder.ExportInput(kinematics.GetInputPort(name), name)
+        builder.ExportOutput(position.get_output_port(), "output")
+        builder.ExportOutput(position.get_output_port(), "plant_state")
+        builder.ExportOutput(pose, "pose")
+        builder.BuildInto(self)
 
 
 class OmniDriveInterface(LeafSystem):

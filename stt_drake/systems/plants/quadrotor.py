@@ -15,19 +15,19 @@ reads the measured stage states [p, v] and nothing else.
 from __future__ import annotations
 
 import numpy as np
-from pydrake.systems.framework import (
-    BasicVector,
-    Context,
-    ContinuousState,
-    ContinuousStateIndex,
-    LeafSystem,
-)
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import Adder, AffineSystem, MatrixGain
 
 
-class Quadrotor(LeafSystem):
+class Quadrotor(Diagram):
     """Second-order UAV. Inputs `control` (force u, 3, N) and `disturbance` (wind force w,
     3, N); outputs `output` = y = p (3), `plant_state` = [p, v] (6, the stacked stage
-    states the controller measures) and `state` = [p, v] (6)."""
+    states the controller measures) and `state` = [p, v] (6).
+
+    Built from Drake's compiled primitives, so the simulation never calls Python for it: an
+    `Adder` (u + w) feeds an `AffineSystem` ẋ = A x + B (u + w) + f₀ with
+    A = [[0, I], [0, −(c_d/m) I]], B = [0; I/m], f₀ = [0; −g e_z] and output x, and a
+    `MatrixGain` [I 0] selects p."""
 
     def __init__(
         self,
@@ -42,37 +42,28 @@ class Quadrotor(LeafSystem):
             raise ValueError(
                 f"Quadrotor: need mass > 0, drag ≥ 0, gravity ≥ 0 (got {mass}, {drag}, {gravity})"
             )
-        self._mass = float(mass)
-        self._drag = float(drag)
-        self._weight = np.array([0.0, 0.0, self._mass * float(gravity)])
         initial = np.concatenate(
             [np.asarray(initial_position, dtype=float), np.asarray(initial_velocity, dtype=float)]
         )
         if initial.shape != (6,):
             raise ValueError("Quadrotor: initial position and velocity need 3 entries each")
-        self.DeclareContinuousState(BasicVector(initial), num_q=3, num_v=3, num_z=0)
-        self._control_port = self.DeclareVectorInputPort("control", 3)
-        self._disturbance_port = self.DeclareVectorInputPort("disturbance", 3)
-        self.DeclareVectorOutputPort(
-            "output", 3, self._calc_position, prerequisites_of_calc={self.xc_ticket()}
+        identity, zero = np.eye(3), np.zeros((3, 3))
+        dynamics = np.block([[zero, identity], [zero, -(float(drag) / float(mass)) * identity]])
+        input_gain = np.vstack([zero, identity / float(mass)])
+        constant = np.array([0.0, 0.0, 0.0, 0.0, 0.0, -float(gravity)])
+        builder = DiagramBuilder()
+        force = builder.AddNamedSystem("force", Adder(2, 3))
+        body = builder.AddNamedSystem(
+            "point_mass",
+            AffineSystem(dynamics, input_gain, constant, np.eye(6), np.zeros((6, 3)), np.zeros(6)),
         )
-        self.DeclareStateOutputPort("plant_state", ContinuousStateIndex(0))
-        self.DeclareStateOutputPort("state", ContinuousStateIndex(0))
-
-    def _calc_position(self, context: Context, output: BasicVector) -> None:
-        output.SetFromVector(context.get_continuous_state_vector().CopyToVector()[:3])
-
-    def DoCalcTimeDerivatives(  # noqa: N802 (Drake API)
-        self, context: Context, derivatives: ContinuousState
-    ) -> None:
-        state = context.get_continuous_state_vector().CopyToVector()
-        velocity = state[3:]
-        force = (
-            self._control_port.Eval(context)
-            + self._disturbance_port.Eval(context)
-            - self._weight
-            - self._drag * velocity
-        )
-        derivatives.get_mutable_vector().SetFromVector(
-            np.concatenate([velocity, force / self._mass])
-        )
+        body.configure_default_state(initial)
+        position = builder.AddNamedSystem("position", MatrixGain(np.hstack([identity, zero])))
+        builder.Connect(force.get_output_port(), body.get_input_port())
+        builder.Connect(body.get_output_port(), position.get_input_port())
+        builder.ExportInput(force.get_input_port(0), "control")
+        builder.ExportInput(force.get_input_port(1), "disturbance")
+        builder.ExportOutput(position.get_output_port(), "output")
+        builder.ExportOutput(body.get_output_port(), "plant_state")
+        builder.ExportOutput(body.get_output_port(), "state")
+        builder.BuildInto(self)
