@@ -145,7 +145,7 @@ class SpatiotemporalTube(LeafSystem):
         self._evaluation = self._declare_cache(
             "tube law evaluation",
             self._calc_evaluation,
-            tickets | {self.all_input_ports_ticket(), self._belief.ticket()},
+            tickets | {self.all_input_ports_ticket()},
         )
         depends = {self._evaluation.ticket()}
         self.DeclareVectorOutputPort(
@@ -225,13 +225,18 @@ class SpatiotemporalTube(LeafSystem):
         value.set_value(law)
 
     def _calc_evaluation(self, context: Context, value: AbstractValue) -> None:
+        # The hot path: the port vector is the memo key, and the belief is made from it
+        # here (not through the `belief` cache entry: one Python call less per evaluation).
         center = self.center(context)
-        belief, circulation = self.belief(context), self.circulation(context)
+        vector, circulation = self._belief_port.Eval(context), self.circulation(context)
         target = None if self._target_law is None else self._target_port.Eval(context)
-        key, result = self._last_evaluation.lookup(center, belief.vector, circulation, target)
+        key, result = self._last_evaluation.lookup(center, vector, circulation, target)
         if result is not None:  # the same inputs as the last evaluation: its result
             value.set_value(result)
             return
+        belief = ObstacleBelief.from_port(
+            vector, self._dimension, self.task, self._full_covariance
+        )
         law = self.law_in(context)
         evaluation = law.evaluate(center, belief, circulation=circulation)
         tube = np.empty(self._dimension + 1)  # the `tube` port value, [c, r]
@@ -244,10 +249,11 @@ class SpatiotemporalTube(LeafSystem):
                 f"ċ = {evaluation.center_rate}, r = {evaluation.radius} (a recovery needs "
                 f"a finite max_center_speed, v_c = {law.max_center_speed})"
             )
-        value.set_value(self._last_evaluation.store(key, (evaluation, tube)))
+        value.set_value(self._last_evaluation.store(key, (evaluation, tube, belief)))
 
-    def evaluated(self, context: Context) -> tuple[TubeEvaluation, np.ndarray]:
-        """The cached (law evaluation, [c, r] with the law's exact radius) in `context`."""
+    def evaluated(self, context: Context) -> tuple[TubeEvaluation, np.ndarray, PortBelief]:
+        """The cached (law evaluation, [c, r] with the law's exact radius, the belief it
+        read) in `context`."""
         return self._evaluation.Eval(context)
 
     def evaluation(self, context: Context) -> TubeEvaluation:
@@ -280,7 +286,7 @@ class SpatiotemporalTube(LeafSystem):
         active and no axis is held."""
         axes = self.circulation(context)
         active = theta > 0.0
-        if not np.any(active) and not np.any(axes):
+        if not active.any() and not axes.any():
             return False
         target = self.law_in(context).target
         carried = carry_circulation(axes, center, mean, active, target - center)
@@ -325,8 +331,9 @@ class ContinuousCentre:
 
     def _carry_circulation(self, context: Context, discrete_state: DiscreteValues) -> EventStatus:
         tube = self._tube
-        center, theta = self.center(context), tube.evaluation(context).theta
-        if tube.carry(context, discrete_state, center, tube.belief(context).slots.mean, theta):
+        evaluation, _, belief = tube.evaluated(context)
+        center, theta = self.center(context), evaluation.theta
+        if tube.carry(context, discrete_state, center, belief.slots.mean, theta):
             return EventStatus.Succeeded()
         return EventStatus.DidNothing()  # nothing active, nothing held: no state change
 

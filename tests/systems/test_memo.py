@@ -81,3 +81,25 @@ def test_a_closed_loop_evaluates_the_law_once_per_stage(law_calls, name):
     # A guide update between two steps moves the target: the first stage then differs.
     updates = 0 if scenario.guide is None else math.ceil(scenario.guide.rate_hz) + 1
     assert law_calls[0] <= derivatives + 1 + updates < derivatives + steps
+
+
+def test_a_changed_belief_is_a_miss_and_the_evaluation_reads_it():
+    """The evaluation makes its belief from the port itself (not from the `belief` cache
+    entry): a moved obstacle gives a new evaluation of the new belief, equal to the law's,
+    and the belief it holds is the port's."""
+    law = make_law()
+    tube = SpatiotemporalTube(law, np.zeros(2), TUBE_BELIEF.task)
+    center = np.array([0.6, 0.35])
+    context = tube_context(tube, center, TUBE_BELIEF)
+    first = tube.evaluation(context)
+    moved = dataclasses.replace(TUBE_BELIEF, mean=TUBE_BELIEF.mean + np.array([0.05, 0.0]))
+    tube.GetInputPort("obstacle_belief").FixValue(context, moved.to_vector())
+    evaluation, port_tube, belief = tube.evaluated(context)
+    np.testing.assert_array_equal(belief.vector, moved.to_vector())
+    np.testing.assert_array_equal(belief.vector, tube.belief(context).vector)
+    # The same compiled call on the same inputs in this process: equal bit for bit.
+    np.testing.assert_array_equal(
+        evaluation.center_rate, law.evaluate(center, moved).center_rate
+    )
+    assert port_tube[-1] == law.evaluate(center, moved).radius
+    assert not np.array_equal(evaluation.avoid_probability, first.avoid_probability)
