@@ -26,7 +26,7 @@ from stt_drake.systems.monitor import (
     StepRateWatchdog,
     step_rate_limit,
 )
-from stt_drake.systems.plants.omni import OmniRobot
+from stt_drake.systems.plants.omni import OmniKinematics
 
 ROOT = Path(__file__).resolve().parents[2]
 CASE1 = ROOT / "diagrams" / "omni_hardware_case1.yaml"
@@ -151,7 +151,7 @@ def _omni_fails_after(monkeypatch: pytest.MonkeyPatch, t_fail: float, how: str) 
     bang-bang velocity switching every ~0.3 µs: error control shrinks the steps to ~1e-8 s;
     it calms down after CHATTER_EVALUATIONS evaluations, so that a broken watchdog fails the
     test instead of hanging it) or `nan` (the state goes NaN: the controller refuses it)."""
-    derivatives_of = OmniRobot.DoCalcTimeDerivatives
+    derivatives_of = OmniKinematics.DoCalcTimeDerivatives
     chattered = [0]
 
     def misbehaving(self, context, derivatives):
@@ -164,7 +164,7 @@ def _omni_fails_after(monkeypatch: pytest.MonkeyPatch, t_fail: float, how: str) 
             velocity = 1e8 * math.copysign(1.0, math.sin(1e7 * t))
             derivatives.get_mutable_vector().SetFromVector([velocity, 0.0, 0.0])
 
-    monkeypatch.setattr(OmniRobot, "DoCalcTimeDerivatives", misbehaving)
+    monkeypatch.setattr(OmniKinematics, "DoCalcTimeDerivatives", misbehaving)
 
 
 #: How many derivative evaluations the chattering plant of the tests lasts (~20 s of wall
@@ -229,9 +229,9 @@ def test_exceptions_inside_advance_to_end_the_cli_run_cleanly(tmp_path):
         """
         import math, sys
         from stt_drake.cli.main import main
-        from stt_drake.systems.plants.omni import OmniRobot
+        from stt_drake.systems.plants.omni import OmniKinematics
 
-        derivatives_of = OmniRobot.DoCalcTimeDerivatives
+        derivatives_of = OmniKinematics.DoCalcTimeDerivatives
         how = sys.argv[1]
 
         def failing(self, context, derivatives):
@@ -241,7 +241,7 @@ def test_exceptions_inside_advance_to_end_the_cli_run_cleanly(tmp_path):
                     raise ValueError("wheel encoder lost")
                 derivatives.get_mutable_vector().SetFromVector([math.nan, 0.0, 0.0])
 
-        OmniRobot.DoCalcTimeDerivatives = failing
+        OmniKinematics.DoCalcTimeDerivatives = failing
         sys.exit(main(["run", sys.argv[2], "--out", sys.argv[3], "--no-figures"]))
         """
     )
