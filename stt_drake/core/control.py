@@ -13,7 +13,7 @@ NaN or inf: a normalised error at or beyond its funnel boundary is saturated jus
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -116,13 +116,14 @@ class FunnelController:
         return len(self.kappa)
 
     @cached_property
-    def _kernel_arrays(self) -> dict[int, tuple[np.ndarray, ...]]:
-        """Per dimension n: κ (N,) and the funnels' p, q, μ as (N − 1, n) float arrays."""
+    def _kernel_arguments(self) -> dict[int, tuple[np.ndarray | float, ...]]:
+        """Per dimension n: the compiled laws' last arguments, κ (N,), the funnels' p, q, μ
+        as (N − 1, n) float arrays and ERROR_SATURATION (:meth:`_arguments_for`)."""
         return {}
 
-    def _arrays_for(self, dimension: int) -> tuple[np.ndarray, ...]:
-        arrays = self._kernel_arrays.get(dimension)
-        if arrays is None:
+    def _arguments_for(self, dimension: int) -> tuple[np.ndarray | float, ...]:
+        arguments = self._kernel_arguments.get(dimension)
+        if arguments is None:
             shape = (len(self.funnels), dimension)
 
             def stacked(name: str) -> np.ndarray:
@@ -132,28 +133,26 @@ class FunnelController:
                 ]
                 return np.array(rows, dtype=float).reshape(shape)
 
-            arrays = (
-                np.array(self.kappa, dtype=float),
-                stacked("start"),
-                stacked("end"),
-                stacked("rate"),
-            )
-            self._kernel_arrays[dimension] = arrays
-        return arrays
+            kappa = np.array(self.kappa, dtype=float)
+            arguments = (kappa, stacked("start"), stacked("end"), stacked("rate"), ERROR_SATURATION)
+            self._kernel_arguments[dimension] = arguments
+        return arguments
+
+    @cached_property
+    def _packed_kernel(self) -> Callable[..., tuple[np.ndarray, np.ndarray, bool]] | None:
+        """The compiled funnel_control_packed, looked up once (read while it is selected)."""
+        return backend.compiled("funnel_control_packed")
 
     def control_from_tube(self, t: float, states: np.ndarray, tube: np.ndarray) -> np.ndarray:
         """Only the control u, from stacked states and the `tube` port vector [c, r]: the
         Drake system's hot path (no ControlEvaluation built). Same value as
         ``evaluate(t, states, tube[:-1], tube[-1]).control``."""
-        kernel = backend.compiled("funnel_control_packed")
+        kernel = self._packed_kernel if backend.using_compiled() else None
         n = len(tube) - 1
-        if kernel is not None and len(states) == self.stages * n:
+        arguments = self._arguments_for(n)
+        if kernel is not None and len(states) == len(arguments[0]) * n:  # arguments[0]: κ
             control, _errors, finite = kernel(
-                float(t),
-                np.asarray(states, dtype=float),
-                np.asarray(tube, dtype=float),
-                *self._arrays_for(n),
-                ERROR_SATURATION,
+                float(t), np.asarray(states, dtype=float), np.asarray(tube, dtype=float), *arguments
             )
             if finite:
                 return control
@@ -175,7 +174,7 @@ class FunnelController:
             n = center.shape[0]
             if flat.shape[0] == self.stages * n:
                 control, errors, finite = kernel(
-                    float(t), flat, center, float(radius), *self._arrays_for(n), ERROR_SATURATION
+                    float(t), flat, center, float(radius), *self._arguments_for(n)
                 )
                 if finite:
                     stages = [errors[1 + k * n : 1 + (k + 1) * n] for k in range(self.stages - 1)]

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from functools import cached_property
 
 import numpy as np
 from pydrake.systems.framework import BasicVector, Context, LeafSystem
@@ -47,12 +48,31 @@ class ObstacleBeliefSource(LeafSystem):
         self._template = belief.to_vector().reshape(count, record_size(dimension))
         #: Whether some obstacle has a full covariance (not σ² I).
         self.full_covariance = belief.covariance is not None
-        self._motions = MotionTable([o.motion for o in self._obstacles], dimension)
+        motions = self._motions = MotionTable([o.motion for o in self._obstacles], dimension)
         self._scheduled = [
             j
             for j, o in enumerate(self._obstacles)
             if o.sigma_schedule is not None or getattr(o, "covariance_schedule", None) is not None
         ]
+        #: The arguments of the compiled belief_table after the template and t, in its order.
+        self._motion_arrays = (
+            motions.oscillating,
+            motions.center,
+            motions.amplitude,
+            motions.angular_frequency,
+            motions.phase,
+            motions.moving,
+            motions.start,
+            motions.velocity,
+            motions.sampled,
+            motions.samples.times,
+            motions.samples.positions,
+            motions.samples.first,
+            motions.samples.last,
+            motions.samples.bounded,
+        )
+        #: Whether some row needs Python after the kernel (another motion model, a schedule).
+        self._per_obstacle = bool(motions.other or self._scheduled)
         self.DeclareVectorOutputPort(
             "obstacle_belief",
             belief_size(count, dimension),
@@ -60,6 +80,11 @@ class ObstacleBeliefSource(LeafSystem):
             prerequisites_of_calc={self.time_ticket()},
         )
         self._last_belief = LastResult()  # stt_drake.systems.memo
+
+    @cached_property
+    def _kernel(self) -> Callable[..., np.ndarray] | None:
+        """The compiled belief_table, looked up once (read while it is selected)."""
+        return backend.compiled("belief_table")
 
     @property
     def obstacle_count(self) -> int:
@@ -69,28 +94,12 @@ class ObstacleBeliefSource(LeafSystem):
         """The port value at time t (equal to ``obstacle_belief(obstacles, n, t).to_vector()``
         with the active flags of :meth:`stt_drake.core.motion.MotionTable.active`)."""
         n = self._dimension
-        kernel = backend.compiled("belief_table")
+        kernel = self._kernel if backend.using_compiled() else None
         if kernel is not None:
-            motions = self._motions
-            vector = kernel(
-                self._template,
-                float(t),
-                motions.oscillating,
-                motions.center,
-                motions.amplitude,
-                motions.angular_frequency,
-                motions.phase,
-                motions.moving,
-                motions.start,
-                motions.velocity,
-                motions.sampled,
-                motions.samples.times,
-                motions.samples.positions,
-                motions.samples.first,
-                motions.samples.last,
-                motions.samples.bounded,
-            )
-            table = vector.reshape(-1, record_size(n))
+            vector = kernel(self._template, float(t), *self._motion_arrays)
+            if not self._per_obstacle:  # the kernel wrote every row
+                return vector
+            table = vector.reshape(self._template.shape)
             self._motions.fill_others(table[:, :n], t)
         else:
             table = self._template.copy()

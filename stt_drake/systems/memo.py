@@ -12,9 +12,25 @@ second context (or a Simulator sharing the system) only costs a miss.
 
 from __future__ import annotations
 
+import struct
 from typing import Any
 
 import numpy as np
+
+_DOUBLE = struct.Struct("d").pack  # a float's bytes, as np.asarray(value).tobytes() gives them
+_FLOAT64 = np.dtype(float)
+
+
+def _key_part(value: np.ndarray | float | None) -> bytes:
+    """The exact bytes of one input (as float64 values); b"" for None."""
+    # The common types first, without a numpy conversion: a time, a port's float64 vector.
+    if type(value) is float:
+        return _DOUBLE(value)
+    if value is None:
+        return b""
+    if type(value) is np.ndarray and value.dtype is _FLOAT64:
+        return value.tobytes()
+    return np.asarray(value, dtype=float).tobytes()
 
 
 class LastResult:
@@ -27,9 +43,7 @@ class LastResult:
     def lookup(self, *inputs: np.ndarray | float | None) -> tuple[tuple[bytes, ...], Any]:
         """(key, result): the key of `inputs` and the stored result when the stored key
         equals it, else None (store the new result with :meth:`store`)."""
-        key = tuple(
-            b"" if value is None else np.asarray(value, dtype=float).tobytes() for value in inputs
-        )
+        key = tuple([_key_part(value) for value in inputs])
         return key, (self._result if key == self._key else None)
 
     def store(self, key: tuple[bytes, ...], result: Any) -> Any:

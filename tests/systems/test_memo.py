@@ -48,6 +48,19 @@ def test_last_result_matches_exact_inputs_only():
     assert memo.lookup(np.array([1.0, 2.0]), 0.5, np.zeros(1))[1] is None  # None ≠ an array
 
 
+def test_last_result_keys_a_value_by_its_float64_bytes_whatever_its_type():
+    """A float, a numpy scalar, an int array and a float64 array of the same values are the
+    same key (the fast paths for a float and a float64 array give numpy's bytes)."""
+    memo = LastResult()
+    memo.store(memo.lookup(0.5, np.array([1.0, 2.0]))[0], "stored")
+    assert memo.lookup(np.float64(0.5), np.array([1, 2]))[1] == "stored"
+    assert memo.lookup(0.5, [1.0, 2.0])[1] == "stored"
+    assert memo.lookup(-0.0, np.array([1.0, 2.0]))[1] is None
+    memo.store(memo.lookup(0.0, None)[0], "zero")
+    assert memo.lookup(-0.0, None)[1] is None  # the bytes differ though the values are equal
+    assert memo.lookup(np.zeros(1), None)[1] == "zero"
+
+
 def test_tube_contexts_alternating_get_each_their_own_evaluation(law_calls):
     """Two contexts of one tube, alternately: every switch is a miss and recomputes, and
     each context reads the law's own result at its centre."""
