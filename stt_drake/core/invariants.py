@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -41,9 +42,9 @@ INVARIANT_NAMES = (
 HOLDS_TOLERANCE = 1e-9
 
 
-@dataclass(frozen=True)
-class InvariantSample:
-    """Margins at one instant, plus the per-obstacle probabilities behind them."""
+class InvariantSample(NamedTuple):
+    """Margins at one instant, plus the per-obstacle probabilities behind them (a
+    NamedTuple: made once per integrator step, cheaper than a frozen dataclass)."""
 
     margins: np.ndarray  # (5,) in INVARIANT_NAMES order
     output_avoid_probability: np.ndarray  # (m,) P(‖y − O_j‖ ≥ r_o_j)
@@ -54,8 +55,21 @@ def evaluate_invariants(
     output: np.ndarray, center: np.ndarray, radius: float, belief: ObstacleBelief, r_min: float
 ) -> InvariantSample:
     """Compute every margin at one instant, independently of the tube's own diagnostics:
-    the probabilities per slot of `belief` (:meth:`ObstacleBelief.in_slots`; an inactive
-    slot reads 1 and takes no part in the margins).
+    :func:`evaluate_tube_invariants` of the tube [c, r] = [`center`, `radius`]."""
+    center = np.asarray(center, dtype=float)
+    tube = np.empty(center.shape[0] + 1)
+    tube[:-1] = center
+    tube[-1] = radius
+    return evaluate_tube_invariants(output, tube, belief, r_min)
+
+
+def evaluate_tube_invariants(
+    output: np.ndarray, tube: np.ndarray, belief: ObstacleBelief, r_min: float
+) -> InvariantSample:
+    """Compute every margin at one instant for the tube [c, r] (the tube port's value),
+    independently of the tube's own diagnostics: the probabilities per slot of `belief`
+    (:meth:`ObstacleBelief.in_slots`; an inactive slot reads 1 and takes no part in the
+    margins).
 
     With full covariances each Σ_j exactly (:func:`_anisotropic_probabilities`); else one
     call of the compiled :func:`stt_drake.core._kernels.invariant_margins_packed` (a belief
@@ -64,13 +78,14 @@ def evaluate_invariants(
     numpy.
     """
     output = np.asarray(output, dtype=float)
+    tube = np.ascontiguousarray(tube, dtype=float)
     dimension = output.shape[0]
     packed = belief.packed
     if packed is not None:
         kernel = backend.compiled("invariant_margins_packed", dimension)
         if kernel is not None:
-            tube = np.append(np.asarray(center, dtype=float), radius)
-            return InvariantSample(*kernel(output, tube, *packed, r_min))
+            return InvariantSample._make(kernel(output, tube, *packed, r_min))
+    center, radius = tube[:-1], float(tube[-1])
     obstacles = belief.obstacles()
     if obstacles.covariance is not None:
         center_q, tube_q, output_q = _anisotropic_probabilities(
@@ -82,8 +97,8 @@ def evaluate_invariants(
         if kernel is not None:
             margins, output_q, tube_q = kernel(
                 output,
-                np.asarray(center, dtype=float),
-                float(radius),
+                center,
+                radius,
                 obstacles.mean,
                 obstacles.sigma,
                 obstacles.radius,

@@ -23,7 +23,7 @@ from stt_drake.core.invariants import (
     InvariantTracker,
     RecoveryTracker,
     center_avoid_probability,
-    evaluate_invariants,
+    evaluate_tube_invariants,
 )
 
 #: Default step-rate limit L (integrator steps per simulated second) of the watchdog, used
@@ -128,8 +128,8 @@ class InvariantMonitor(LeafSystem):
     probability itself rather than trusting the tube's diagnostics, so a bug in the tube
     cannot hide from it.
 
-    `task` holds each slot's r_o, ε, p_d. The belief input is prepared once per change, as
-    the tube prepares its own (:meth:`ObstacleBelief.from_port`). The margins use the active
+    `task` holds each slot's r_o, ε, p_d. The belief input is read as the tube reads its
+    own (:meth:`ObstacleBelief.from_port`). The margins use the active
     slots only (an inactive slot's probabilities read 1); with `full_covariance` they use
     each Σ_j exactly, else σ_j² = λ_max(Σ_j) (exact for Σ_j = σ_j² I)."""
 
@@ -148,19 +148,12 @@ class InvariantMonitor(LeafSystem):
         )
         self._output_port = self.DeclareVectorInputPort("output", dimension)
         self._recovery_port = self.DeclareVectorInputPort("recovery", count)
-        self._belief = self.DeclareCacheEntry(
-            description="obstacle belief prepared for the margins",
-            value_producer=ValueProducer(
-                allocate=AbstractValue.Make(object()).Clone, calc=self._calc_belief
-            ),
-            prerequisites_of_calc={self.input_port_ticket(self._belief_port.get_index())},
-        )
         self._sample = self.DeclareCacheEntry(
             description="invariant margins",
             value_producer=ValueProducer(
                 allocate=AbstractValue.Make(object()).Clone, calc=self._calc_sample
             ),
-            prerequisites_of_calc={self.all_input_ports_ticket(), self._belief.ticket()},
+            prerequisites_of_calc={self.all_input_ports_ticket()},
         )
         depends = {self._sample.ticket()}
         self.margins_port = self.DeclareVectorOutputPort(
@@ -182,22 +175,19 @@ class InvariantMonitor(LeafSystem):
             prerequisites_of_calc=depends,
         )
 
-    def _calc_belief(self, context: Context, value: AbstractValue) -> None:
-        value.set_value(
-            ObstacleBelief.from_port(
-                self._belief_port.Eval(context), self._dimension, self._task, self._full_covariance
-            )
+    def belief(self, context: Context) -> PortBelief:
+        """The `obstacle_belief` input with the task numbers, as the margins read it (made
+        at each call: no cache entry of its own, one Python callback less per step)."""
+        return ObstacleBelief.from_port(
+            self._belief_port.Eval(context), self._dimension, self._task, self._full_covariance
         )
 
-    def belief(self, context: Context) -> PortBelief:
-        """The `obstacle_belief` input with the task numbers, as the margins read it."""
-        return self._belief.Eval(context)
-
     def _calc_sample(self, context: Context, value: AbstractValue) -> None:
-        output = self._output_port.Eval(context)
-        tube = self._tube_port.Eval(context)
-        sample = evaluate_invariants(
-            output, tube[:-1], float(tube[-1]), self.belief(context), self._r_min
+        sample = evaluate_tube_invariants(
+            self._output_port.Eval(context),
+            self._tube_port.Eval(context),
+            self.belief(context),
+            self._r_min,
         )
         value.set_value(sample)
 
@@ -242,10 +232,13 @@ class InvariantMonitor(LeafSystem):
         lines).
         """
 
+        nothing = EventStatus.DidNothing()  # made once: returned at almost every step
+
         def monitor(root_context: Context) -> EventStatus:
             context = self.GetMyContextFromRoot(root_context)
             t = context.get_time()
-            message = tracker.update(t, self.margins_port.Eval(context))
+            # The cache entry, not the `margins` port: no Python callback copying them out.
+            message = tracker.update(t, self._sample.Eval(context).margins)
             if progress is not None:
                 progress(t, tracker)
             if recoveries is not None:
@@ -259,7 +252,7 @@ class InvariantMonitor(LeafSystem):
                 stop = watchdog.step(t)
                 if stop is not None:  # None as the system: see above
                     return EventStatus.ReachedTermination(None, stop)
-            return EventStatus.DidNothing()
+            return nothing
 
         installed = monitor if also is None else combine_monitors(monitor, also)
         simulator.set_monitor(installed)
