@@ -17,6 +17,7 @@ from numba import njit
 
 from stt_drake.core._anisotropic import ball_probabilities
 from stt_drake.core.backend import jit_options
+from stt_drake.core.constants import HIT_NEGLIGIBLE_SIGMAS
 
 _JIT = jit_options()
 
@@ -74,7 +75,12 @@ def anisotropic_invariants(
         radii[0] = obstacle_radius[j] + r_min
         radii[1] = obstacle_radius[j] + max(radius, 0.0)
         radii[2] = obstacle_radius[j]
+        negligible = HIT_NEGLIGIBLE_SIGMAS * math.sqrt(variances[-1])
         for k in range(3):
-            q[j, k] = ball_probabilities(variances, at_output if k == 2 else at_center, radii[k])[1]
+            point = at_output if k == 2 else at_center
+            if math.sqrt(np.sum(point * point)) > radii[k] + negligible:
+                q[j, k] = 1.0  # a hit below half an ulp of 1 (HIT_NEGLIGIBLE_SIGMAS)
+            else:
+                q[j, k] = ball_probabilities(variances, point, radii[k])[1]
         valid[j] = True
     return q, valid

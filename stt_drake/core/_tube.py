@@ -534,26 +534,83 @@ def tube_step_packed(
     """:func:`tube_step` on a belief port vector and the task rows ([r_o, ε, p_d] per slot):
     the active slots only, σ_j = √λ_max(Σ_j); per slot outputs with q = 1, d̂ = +∞, θ = 0 in
     the inactive slots (they never reach ċ or r); laid out as :func:`tube_step`'s result."""
+    slots, mean, sigma, rows = active_slots(belief, task, center.shape[0])
+    return _step_over_slots(
+        center, slots, mean, sigma, rows, k2, k3, circulation, constants, task.shape[0]
+    )
+
+
+@njit(**_JIT)
+def exact_tube_step_packed(
+    center: np.ndarray,
+    belief: np.ndarray,
+    task: np.ndarray,
+    k2: np.ndarray,
+    k3: np.ndarray,
+    circulation: np.ndarray,
+    constants: np.ndarray,
+) -> np.ndarray:
+    """:func:`tube_step_packed` with each active slot's Σ_j exactly (:func:`exact_tube_step`):
+    the port vector is read here, so a tube with full covariances pays no unpacking."""
+    slots, mean, covariance, rows = active_covariances(belief, task, center.shape[0])
+    return _step_over_slots(
+        center, slots, mean, covariance, rows, k2, k3, circulation, constants, task.shape[0]
+    )
+
+
+@njit(**_JIT)
+def active_covariances(
+    belief: np.ndarray, task: np.ndarray, n: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The active slots of a belief port vector with their task rows: (slot indices,
+    μ (k, n), Σ (k, n, n), task rows (k, 3))."""
+    table = belief.reshape((-1, n + n * n + 1))
+    slots = np.nonzero(table[:, n + n * n] > 0.5)[0]
+    mean = np.empty((slots.shape[0], n))
+    covariance = np.empty((slots.shape[0], n, n))
+    rows = np.empty((slots.shape[0], 3))
+    for k in range(slots.shape[0]):
+        j = slots[k]
+        for i in range(n):
+            mean[k, i] = table[j, i]
+            for column in range(n):
+                covariance[k, i, column] = table[j, n + i * n + column]
+        for i in range(3):
+            rows[k, i] = task[j, i]
+    return slots, mean, covariance, rows
+
+
+@njit(**_JIT)
+def _step_over_slots(
+    center: np.ndarray,
+    slots: np.ndarray,
+    mean: np.ndarray,
+    uncertainty: np.ndarray,
+    rows: np.ndarray,
+    k2: np.ndarray,
+    k3: np.ndarray,
+    circulation: np.ndarray,
+    constants: np.ndarray,
+    count: int,
+) -> np.ndarray:
+    """:func:`exact_tube_step` on the active slots' arrays (σ_j or Σ_j) of a port with
+    `count` slots, spread back over every slot (q = 1, d̂ = +∞, θ = 0 in the inactive
+    ones)."""
     n = center.shape[0]
-    slots, mean, sigma, rows = active_slots(belief, task, n)
-    count = task.shape[0]
     axes = circulation
     if circulation.shape[0] == count and slots.shape[0] < count:
         axes = np.empty((slots.shape[0], circulation.shape[1]))
         for k in range(slots.shape[0]):
             axes[k] = circulation[slots[k]]
-    empty = np.empty(0)
-    active = tube_step(
+    active = exact_tube_step(
         center,
         mean,
-        sigma,
+        uncertainty,
         rows[:, 0],
         rows[:, 1],
         rows[:, 2],
         _per_slot(k2, slots),
         _per_slot(k3, slots),
-        empty,
-        empty,
         axes,
         constants,
     )

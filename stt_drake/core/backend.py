@@ -67,6 +67,7 @@ KERNELS: dict[str, tuple[int, ...] | None] = {
     "avoid_gradient_array": (2, 3),  # anisotropic.avoid_gradient
     "quantile_radius_array": (2, 3),  # anisotropic.quantile_radius
     "exact_tube_step": (2, 3),  # tube.TubeLaw.evaluate with covariances
+    "exact_tube_step_packed": (2, 3),  # tube.TubeLaw.evaluate (covariances from a port)
     "track_update": COMPILED_DIMENSIONS,  # tracking.update
     "track_update_monitored": COMPILED_DIMENSIONS,  # tracking.monitored_update
     "track_belief": COMPILED_DIMENSIONS,  # tracking.KalmanTracker.belief_vector
@@ -91,6 +92,7 @@ KERNEL_MODULES: dict[str, str] = {
     "avoid_gradient_array": "_anisotropic",
     "quantile_radius_array": "_anisotropic",
     "exact_tube_step": "_tube",
+    "exact_tube_step_packed": "_tube",
     "track_update": "_tracking",
     "track_update_monitored": "_tracking",
     "track_belief": "_tracking",
@@ -119,6 +121,9 @@ SIGNATURES: dict[str, tuple[str, ...]] = {
     "chi_isf_array": (_signature(_VECTOR, _VECTOR, "int64"),),
     "tube_step": (_signature(_VECTOR, _MATRIX, *[_VECTOR] * 8, _MATRIX, _VECTOR),),
     "tube_step_packed": (
+        _signature(_VECTOR, _VECTOR, _MATRIX, _VECTOR, _VECTOR, _MATRIX, _VECTOR),
+    ),
+    "exact_tube_step_packed": (
         _signature(_VECTOR, _VECTOR, _MATRIX, _VECTOR, _VECTOR, _MATRIX, _VECTOR),
     ),
     "tube_advance": (

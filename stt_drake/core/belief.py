@@ -222,7 +222,14 @@ class ObstacleBelief:
     @property
     def packed(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(port vector, task rows) for the compiled kernels that read the port themselves
-        (σ_j = √λ_max(Σ_j) computed in the kernel); None: not made from a port."""
+        (σ_j = √λ_max(Σ_j) computed in the kernel); None: not made from a port, or the
+        law uses each Σ_j (see :attr:`port_arrays`)."""
+        return None
+
+    @property
+    def port_arrays(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(port vector, task rows) of a belief made from a port, whichever way its
+        covariances are read; None: not made from a port."""
         return None
 
     def in_slots(self, values: np.ndarray, fill: float) -> np.ndarray:
@@ -351,7 +358,11 @@ class PortBelief(ObstacleBelief):
 
     @property
     def packed(self) -> tuple[np.ndarray, np.ndarray] | None:
-        return None if self.full_covariance else (self.vector, self.slot_task.table())
+        return None if self.full_covariance else self.port_arrays
+
+    @property
+    def port_arrays(self) -> tuple[np.ndarray, np.ndarray] | None:
+        return self.vector, self.slot_task.table()
 
     @cached_property
     def slots(self) -> GaussianBelief:

@@ -37,6 +37,14 @@ CIRCULATION_MIN_SINE = 1e-3
 #: ``scipy.special.ndtri(2.0**-54)`` (tests/core/test_constants.py checks it).
 SF_IS_ONE_BELOW = -8.292361075813597
 
+#: A point farther than r + HIT_NEGLIGIBLE_SIGMAS·σ_max from a Gaussian centre μ (covariance
+#: Σ, σ_max² = λ_max(Σ); dimensionless, in units of σ_max) lies in the ball of radius r
+#: around the random centre with probability at most P(χ²_n > 81), since
+#: ‖O − μ‖² ≤ σ_max²‖Z‖² with Z ~ N(0, I_n): 1.9e-17 for n = 3 and less for n < 3, below
+#: 2⁻⁵⁴ (half the spacing of doubles just below 1), so the avoid probability is 1.0 in
+#: double precision (tests/core/test_constants.py checks the tail with scipy).
+HIT_NEGLIGIBLE_SIGMAS = 9.0
+
 #: The compiled quantile of the noncentral chi (d̂_j of Eq. (8)): Halley iterations stop
 #: when the last step is below this fraction of s (relative, dimensionless).
 CHI_QUANTILE_RTOL = 1e-14

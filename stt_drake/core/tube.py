@@ -120,6 +120,11 @@ ANISOTROPIC_PRUNE_HEADROOM_NU = 25.0
 _NO_INFLATION = np.empty(0)
 
 
+def _kernel_mode(full_covariance: bool, mode: str) -> str:
+    """The kernel constants' key: full covariances prune with their own bound."""
+    return "pruned_anisotropic" if full_covariance and mode == "pruned" else mode
+
+
 @dataclass(frozen=True)
 class TubeLaw:
     """Centre and radius law of the STT (Eqs. (4), (5), (8) and (14)).
@@ -298,16 +303,17 @@ class TubeLaw:
         mode = ("pruned" if prune else "exact") if quantiles else "rate"
         center = np.asarray(center, dtype=float)
         if inflation is None:  # else only isotropic beliefs (checked in _evaluate_obstacles)
-            packed = belief.packed
-            if packed is not None:
-                count = len(packed[1])
-                call = self._kernel_call("tube_step_packed", belief.dimension, count, mode)
+            port = belief.port_arrays
+            if port is not None:
+                count, full = len(port[1]), belief.packed is None
+                name = "exact_tube_step_packed" if full else "tube_step_packed"
+                call = self._kernel_call(name, belief.dimension, count, _kernel_mode(full, mode))
                 if call is not None:
                     kernel, k2, k3, constants, axes = call
                     if circulation is not None:
                         axes = kernel_extras((count, belief.dimension), circulation, None)[2]
                     return evaluation_of(
-                        kernel(center, *packed, k2, k3, axes, constants), len(center)
+                        kernel(center, *port, k2, k3, axes, constants), len(center)
                     )
         obstacles = belief.obstacles()
         circulation = belief.of_obstacles(circulation)
@@ -333,9 +339,7 @@ class TubeLaw:
         if inflation is not None:
             check_continuous_for_covariance(full, True, "inflation", inflation, "None")
         name = "exact_tube_step" if full else "tube_step"
-        call = self._kernel_call(
-            name, n, count, "pruned_anisotropic" if full and mode == "pruned" else mode
-        )
+        call = self._kernel_call(name, n, count, _kernel_mode(full, mode))
         if call is None:
             prune_above = {
                 "pruned": self.anisotropic_prune_above if full else self.prune_above,

@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from stt_drake.core import anisotropic, backend
 from stt_drake.core._anisotropic_tube import symmetric_eigen
 from stt_drake.core.anisotropic_tube import pruning_bounds
-from stt_drake.core.belief import ObstacleBelief
+from stt_drake.core.belief import GaussianBelief, ObstacleBelief
 from stt_drake.core.rules import ISOTROPIC_PERIOD_RULE
 from stt_drake.core.tube import TubeLaw
 
@@ -384,3 +384,73 @@ def test_compiled_monitor_probabilities_match_numpy(n):
             ValueError, match=r"^obstacle 4: covariance must be positive definite"
         ):
             evaluate_invariants(output, center, 0.1, replace(belief, covariance=broken), 0.05)
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_a_port_belief_with_covariances_runs_the_packed_kernel_alike(n):
+    """A tube's belief straight from its port (some slots inactive, per-slot gains, 3D
+    circulation axes) gives what the law gives on the active obstacles' arrays, spread over
+    the slots, and unpacks nothing on the way."""
+    rng = np.random.default_rng(SEED + n)
+    count = 12
+    belief = field(rng, n, count, covariance=True)
+    active = np.ones(count, dtype=bool)
+    active[[1, 4, 9]] = False
+    vector = GaussianBelief(belief.mean, belief.covariance, active).to_vector()
+    law = make_law(n, k2=np.linspace(0.2, 0.6, count), k3=np.linspace(0.0, 0.9, count))
+    axes = None
+    if n == 3:
+        axes = rng.normal(size=(count, 3))
+        axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    task = belief.task
+    acting = 0
+    for center in rng.uniform(0.0, 4.0, (6, n)):
+        port = ObstacleBelief.from_port(vector, n, task, full_covariance=True)
+        packed = law.evaluate(center, port, circulation=axes)
+        assert "_obstacles" not in port.__dict__ and "slots" not in port.__dict__
+        arrays = ObstacleBelief.from_port(vector, n, task, full_covariance=True).obstacles()
+        per_slot_law = replace(law, k2=law.k2[active], k3=law.k3[active])
+        direct = per_slot_law.evaluate(
+            center, arrays, circulation=None if axes is None else axes[active]
+        )
+        # The same compiled driver on the same numbers: only the copies differ.
+        np.testing.assert_allclose(packed.center_rate, direct.center_rate, rtol=1e-12, atol=1e-15)
+        assert packed.radius == pytest.approx(direct.radius, rel=1e-12)
+        for name, fill in (("avoid_probability", 1.0), ("quantile_distance", np.inf)):
+            values = getattr(packed, name)
+            np.testing.assert_allclose(values[active], getattr(direct, name), rtol=1e-12)
+            assert np.all(values[~active] == fill)
+        np.testing.assert_array_equal(packed.theta[~active], 0.0)
+        acting += int(np.sum(direct.theta > 0.0))
+    assert acting > 0  # the obstacles' share of ċ is exercised
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_the_monitor_skips_only_hits_below_double_precision(n):
+    """Beyond r_o + HIT_NEGLIGIBLE_SIGMAS·σ_max the compiled monitor reads q = 1 without
+    integrating; the contour integral there gives 1 too (to 1e-15), and just inside that
+    distance it still integrates (q < 1 where the hit is not negligible)."""
+    from stt_drake.core.constants import HIT_NEGLIGIBLE_SIGMAS
+    from stt_drake.core.invariants import evaluate_invariants
+
+    rng = np.random.default_rng(SEED)
+    covariance = random_covariance(rng, n, 20.0, 0.3)
+    sigma_max = float(np.sqrt(np.linalg.eigvalsh(covariance)[-1]))
+    direction = np.linalg.eigh(covariance)[1][:, -1]  # along the widest axis
+    radius = 0.2
+    for sigmas, negligible in ((HIT_NEGLIGIBLE_SIGMAS * 1.001, True), (5.0, False)):
+        output = (radius + sigmas * sigma_max) * direction
+        belief = ObstacleBelief(
+            mean=np.zeros((1, n)), sigma=np.array([sigma_max]), radius=np.array([radius]),
+            epsilon=np.array([0.9]), p_d=np.array([0.9999]), covariance=covariance[None],
+        )
+        far_center = np.full(n, 100.0)
+        sample = evaluate_invariants(output, far_center, 0.1, belief, 0.05)
+        exact = anisotropic.ball_probabilities(
+            np.linalg.eigvalsh(covariance), np.linalg.eigh(covariance)[1].T @ output, radius
+        )[1]
+        q_output = sample.output_avoid_probability[0]
+        if negligible:
+            assert q_output == 1.0 and exact == pytest.approx(1.0, abs=1e-15)
+        else:
+            assert q_output < 1.0 and q_output == pytest.approx(exact, abs=1e-13)

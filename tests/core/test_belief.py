@@ -33,9 +33,12 @@ def test_a_port_belief_is_the_active_slots_with_their_task_numbers(full_covarian
     assert belief.count == 3 and belief.dimension == 2
     for name in ("mean", "sigma", "radius", "epsilon", "p_d"):
         np.testing.assert_array_equal(getattr(belief, name), getattr(expected, name))
+    port_vector_read, port_rows = belief.port_arrays
+    assert port_vector_read is belief.vector
+    np.testing.assert_array_equal(port_rows, TASK.table())
     if full_covariance:
         np.testing.assert_array_equal(belief.covariance, expected.covariance)
-        assert belief.packed is None  # the exact law reads the arrays
+        assert belief.packed is None  # the isotropic kernels must not read it
     else:
         assert belief.covariance is None
         packed_vector, rows = belief.packed
@@ -62,7 +65,7 @@ def test_results_are_spread_over_the_slots():
     scripted = belief.obstacles()  # obstacle j is slot j: nothing to spread
     values = np.array([1.0, 2.0, 3.0])
     assert scripted.in_slots(values, 9.0) is values and scripted.of_obstacles(rows) is rows
-    assert scripted.packed is None
+    assert scripted.packed is None and scripted.port_arrays is None
 
 
 def test_a_port_vector_that_does_not_fit_the_task_is_refused():

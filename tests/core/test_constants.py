@@ -46,3 +46,11 @@ def test_constants_is_pure_python():
 
 def test_sf_is_one_below_is_the_normal_quantile_of_two_to_the_minus_54():
     assert float(special.ndtri(2.0**-54)) == constants.SF_IS_ONE_BELOW
+
+
+def test_a_hit_beyond_the_negligible_distance_is_below_half_the_spacing_below_one():
+    """P(χ²_n > HIT_NEGLIGIBLE_SIGMAS²) < 2⁻⁵⁴ for n = 1, 2, 3: 1 − that is 1.0 in double."""
+    for n in (1, 2, 3):
+        tail = float(special.chdtrc(n, constants.HIT_NEGLIGIBLE_SIGMAS**2))
+        assert 0.0 < tail < 2.0**-54, (n, tail)
+        assert 1.0 - tail == 1.0
