@@ -890,6 +890,46 @@ def tube_advance(
 
 
 @njit(**_JIT)
+def tube_advance_packed(
+    center: np.ndarray,
+    belief: np.ndarray,
+    task: np.ndarray,
+    k2: np.ndarray,
+    k3: np.ndarray,
+    mean_speed: np.ndarray,
+    sigma_rate: np.ndarray,
+    circulation: np.ndarray,
+    constants: np.ndarray,
+    prune_above: float,
+    duration: float,
+    start_radius: float,
+    max_attempts: int,
+) -> tuple[np.ndarray, np.ndarray, int, float, float, np.ndarray]:
+    """:func:`tube_advance` on a belief port vector whose slots are all active and the task
+    rows ([r_o, ε, p_d] per slot), σ_j = √λ_max(Σ_j) read in closed form as
+    :func:`tube_step_packed` reads it: a fixed-rate update unpacks nothing."""
+    _slots, mean, sigma, rows = active_slots(belief, task, center.shape[0])
+    return tube_advance(
+        center,
+        mean,
+        sigma,
+        rows[:, 0],
+        rows[:, 1],
+        rows[:, 2],
+        k2,
+        k3,
+        mean_speed,
+        sigma_rate,
+        circulation,
+        constants,
+        prune_above,
+        duration,
+        start_radius,
+        max_attempts,
+    )
+
+
+@njit(**_JIT)
 def _point_quantile_lower_bounds(
     point: np.ndarray,
     mean: np.ndarray,

@@ -57,6 +57,7 @@ KERNELS: dict[str, tuple[int, ...] | None] = {
     "tube_step": COMPILED_DIMENSIONS,  # tube.TubeLaw.evaluate / switching_gains
     "tube_step_packed": COMPILED_DIMENSIONS,  # tube.TubeLaw.evaluate (a belief from a port)
     "tube_advance": COMPILED_DIMENSIONS,  # tube.TubeLaw.advance
+    "tube_advance_packed": COMPILED_DIMENSIONS,  # tube.TubeLaw.advance (a belief from a port)
     "invariant_margins": COMPILED_DIMENSIONS,  # invariants.evaluate_invariants
     "invariant_margins_packed": COMPILED_DIMENSIONS,  # invariants.evaluate_invariants (port belief)
     "carry_circulation": None,  # circulation.carry_circulation (3D by construction)
@@ -82,6 +83,7 @@ KERNEL_MODULES: dict[str, str] = {
     "tube_step": "_tube",
     "tube_step_packed": "_tube",
     "tube_advance": "_tube",
+    "tube_advance_packed": "_tube",
     "invariant_margins": "_kernels",
     "invariant_margins_packed": "_kernels",
     "carry_circulation": "_kernels",
@@ -131,6 +133,20 @@ SIGNATURES: dict[str, tuple[str, ...]] = {
             _VECTOR,
             _MATRIX,
             *[_VECTOR] * 8,
+            _MATRIX,
+            _VECTOR,
+            "float64",
+            "float64",
+            "float64",
+            "int64",
+        ),
+    ),
+    "tube_advance_packed": (
+        _signature(
+            _VECTOR,
+            _VECTOR,
+            _MATRIX,
+            *[_VECTOR] * 4,
             _MATRIX,
             _VECTOR,
             "float64",

@@ -222,12 +222,39 @@ def advance(
         sub-steps cannot cover is held where they got to, which stays certified).
     """
     center = np.array(center, dtype=float)
+    port = belief.packed  # an isotropic belief from a port: the kernel reads the vector
+    if port is not None and belief.slots.active.all():
+        kernel = backend.compiled("tube_advance_packed", belief.dimension)
+        if kernel is not None:
+            shape = (len(port[1]), belief.dimension)
+            bounds = bounds if bounds is not None else BeliefRateBounds.still(shape[0])
+            return _compiled_advance(
+                kernel,
+                law,
+                center,
+                shape,
+                port,
+                duration,
+                bounds,
+                circulation,
+                radius,
+                max_attempts,
+            )
     belief = belief.obstacles()
     bounds = bounds if bounds is not None else BeliefRateBounds.still(belief.count)
     kernel = backend.compiled("tube_advance", belief.dimension)
     if kernel is not None:
         return _compiled_advance(
-            kernel, law, center, belief, duration, bounds, circulation, radius, max_attempts
+            kernel,
+            law,
+            center,
+            belief.mean.shape,
+            belief.arrays(),
+            duration,
+            bounds,
+            circulation,
+            radius,
+            max_attempts,
         )
     look_ahead = bounds.inflation(belief.sigma, 2.0 * duration)
     path = _integrate(law, center, belief, duration, look_ahead, circulation, max_attempts)
@@ -245,20 +272,22 @@ def _compiled_advance(
     kernel: Callable[..., tuple],
     law: _Law,
     center: np.ndarray,
-    belief: ObstacleBelief,
+    shape: tuple[int, int],
+    obstacles: tuple[np.ndarray, ...],
     duration: float,
     bounds: BeliefRateBounds,
     circulation: np.ndarray | None,
     radius: float,
     max_attempts: int,
 ) -> FixedRateUpdate:
-    """:func:`advance` in one call of the compiled
-    :func:`stt_drake.core._tube.tube_advance`."""
-    k2, k3, constants = law.kernel_arguments(belief.count, "rate")
-    _reach, _spread, axes = kernel_extras(belief.mean.shape, circulation, None)
+    """:func:`advance` in one call of the compiled :func:`stt_drake.core._tube.tube_advance`
+    (`obstacles` = μ, σ, r_o, ε, p_d) or :func:`stt_drake.core._tube.tube_advance_packed`
+    (`obstacles` = the port vector and the task rows), for `shape` = (obstacles, n)."""
+    k2, k3, constants = law.kernel_arguments(shape[0], "rate")
+    _reach, _spread, axes = kernel_extras(shape, circulation, None)
     position, certified, accepted, start_radius, end_radius, theta = kernel(
         center,
-        *belief.arrays(),
+        *obstacles,
         k2,
         k3,
         np.asarray(bounds.mean_speed, dtype=float),

@@ -312,6 +312,33 @@ def test_compiled_and_numpy_updates_agree(n):
             np.testing.assert_allclose(update.theta, at_end, rtol=1e-12, atol=1e-15)
 
 
+@pytest.mark.parametrize("n", [2, 3])
+def test_an_update_from_a_port_belief_reads_the_vector_alike(n):
+    """The fixed-rate tube's belief comes from its port: the packed kernel reads σ_j in
+    closed form from the vector and unpacks nothing, and updates as from the arrays."""
+    rng = np.random.default_rng(RNG_SEED + 17 * n)
+    tube = law(np.full(n, 4.0), max_center_speed=1.5)
+    for _ in range(60):
+        now = belief(rng.uniform(0, 4, (4, n)), rng.uniform(0.03, 0.4, 4), 0.2, 0.9)
+        bounds = BeliefRateBounds(rng.uniform(0, 1, 4), rng.uniform(0, 0.1, 4))
+        center = rng.uniform(0, 4, n)
+        axes = None
+        if n == 3:
+            axes = carry_circulation(
+                np.zeros((4, 3)), center, now.mean, np.ones(4, bool), tube.target - center
+            )
+        port = ObstacleBelief.from_port(now.to_vector(), n, now.task)
+        packed = tube.advance(center, port, 0.05, bounds, axes, radius=0.3)
+        assert "_obstacles" not in port.__dict__
+        arrays = tube.advance(center, now, 0.05, bounds, axes, radius=0.3)
+        # σ_j = √λ_max of σ_j² I in closed form against the given σ_j: one rounding, as
+        # above a few-ulp q difference near a gap threshold moves a sub-step end by < 1e-9 m.
+        np.testing.assert_allclose(packed.center, arrays.center, rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(packed.certified, arrays.certified)
+        assert packed.end_radius == pytest.approx(arrays.end_radius, rel=1e-9, abs=1e-12)
+        assert packed.start_radius == pytest.approx(arrays.start_radius, rel=1e-9, abs=1e-12)
+
+
 # --------------------------------------------------------------------------------------
 # 3D circulation
 # --------------------------------------------------------------------------------------
