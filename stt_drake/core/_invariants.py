@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 from stt_drake.core._anisotropic import ball_probabilities
+from stt_drake.core._kernels import _nan_min, active_covariances
 from stt_drake.core.backend import jit_options
 from stt_drake.core.constants import HIT_NEGLIGIBLE_SIGMAS
 
@@ -84,3 +85,48 @@ def anisotropic_invariants(
                 q[j, k] = ball_probabilities(variances, point, radii[k])[1]
         valid[j] = True
     return q, valid
+
+
+@njit(**_JIT)
+def anisotropic_invariants_packed(
+    output: np.ndarray,
+    tube: np.ndarray,
+    belief: np.ndarray,
+    task: np.ndarray,
+    r_min: float,
+    symmetry_rtol: float,
+    max_condition: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """The margins of :func:`stt_drake.core.invariants.evaluate_tube_invariants` with full
+    covariances, on port vectors: tube = [c, r], the belief port vector and the task rows
+    ([r_o, ε, p_d] per slot); the active slots only (the inactive ones: probability 1).
+
+    Returns:
+        (margins (5,), P(‖y − O_j‖ ≥ r_o_j) per slot, P(‖c − O_j‖ ≥ r_o_j + r) per slot,
+        valid): `valid` is False where some active Σ_j breaks a rule of
+        :func:`anisotropic_invariants` (the caller names it; the margins are then NaN).
+    """
+    n = output.shape[0]
+    slots, mean, covariance, rows = active_covariances(belief, task, n)
+    radius = tube[n]
+    q, valid = anisotropic_invariants(
+        output, tube[:n], radius, mean, covariance, rows[:, 0], r_min, symmetry_rtol, max_condition
+    )
+    margins = np.empty(5)
+    offset = 0.0
+    for i in range(n):
+        offset += (output[i] - tube[i]) ** 2
+    margins[0] = radius - math.sqrt(offset)
+    worst = np.ones(3)  # with no obstacle a probability margin is vacuous: 1 > every 1 − ε
+    output_q = np.ones(task.shape[0])
+    tube_q = np.ones(task.shape[0])
+    for k in range(slots.shape[0]):
+        for column in range(3):
+            worst[column] = _nan_min(worst[column], q[k, column] - rows[k, 1])
+        tube_q[slots[k]] = q[k, 1]
+        output_q[slots[k]] = q[k, 2]
+    margins[1] = worst[0]
+    margins[2] = worst[1]
+    margins[3] = worst[2]
+    margins[4] = radius
+    return margins, output_q, tube_q, bool(np.all(valid))

@@ -617,6 +617,28 @@ def active_slots(
     return slots, mean, sigma, rows
 
 
+@njit(**_JIT)
+def active_covariances(
+    belief: np.ndarray, task: np.ndarray, n: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The active slots of a belief port vector with their task rows: (slot indices,
+    μ (k, n), Σ (k, n, n), task rows (k, 3))."""
+    table = belief.reshape((-1, n + n * n + 1))
+    slots = np.nonzero(table[:, n + n * n] > 0.5)[0]
+    mean = np.empty((slots.shape[0], n))
+    covariance = np.empty((slots.shape[0], n, n))
+    rows = np.empty((slots.shape[0], 3))
+    for k in range(slots.shape[0]):
+        j = slots[k]
+        for i in range(n):
+            mean[k, i] = table[j, i]
+            for column in range(n):
+                covariance[k, i, column] = table[j, n + i * n + column]
+        for i in range(3):
+            rows[k, i] = task[j, i]
+    return slots, mean, covariance, rows
+
+
 # --------------------------------------------------------------------------- invariants
 @njit(**_JIT)
 def invariant_margins(

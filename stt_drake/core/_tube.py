@@ -31,6 +31,7 @@ from stt_drake.core._anisotropic_tube import (
 )
 from stt_drake.core._kernels import (
     _distance,
+    active_covariances,
     active_slots,
     chi_isf_given,
     chi_sf,
@@ -556,28 +557,6 @@ def exact_tube_step_packed(
     return _step_over_slots(
         center, slots, mean, covariance, rows, k2, k3, circulation, constants, task.shape[0]
     )
-
-
-@njit(**_JIT)
-def active_covariances(
-    belief: np.ndarray, task: np.ndarray, n: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The active slots of a belief port vector with their task rows: (slot indices,
-    μ (k, n), Σ (k, n, n), task rows (k, 3))."""
-    table = belief.reshape((-1, n + n * n + 1))
-    slots = np.nonzero(table[:, n + n * n] > 0.5)[0]
-    mean = np.empty((slots.shape[0], n))
-    covariance = np.empty((slots.shape[0], n, n))
-    rows = np.empty((slots.shape[0], 3))
-    for k in range(slots.shape[0]):
-        j = slots[k]
-        for i in range(n):
-            mean[k, i] = table[j, i]
-            for column in range(n):
-                covariance[k, i, column] = table[j, n + i * n + column]
-        for i in range(3):
-            rows[k, i] = task[j, i]
-    return slots, mean, covariance, rows
 
 
 @njit(**_JIT)

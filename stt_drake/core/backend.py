@@ -73,6 +73,7 @@ KERNELS: dict[str, tuple[int, ...] | None] = {
     "track_update_monitored": COMPILED_DIMENSIONS,  # tracking.monitored_update
     "track_belief": COMPILED_DIMENSIONS,  # tracking.KalmanTracker.belief_vector
     "anisotropic_invariants": (2, 3),  # invariants.evaluate_invariants with covariances
+    "anisotropic_invariants_packed": (2, 3),  # the same, covariances from a port
     "route_search": None,  # route_search.search_route (the guide's A*)
 }
 
@@ -99,6 +100,7 @@ KERNEL_MODULES: dict[str, str] = {
     "track_update_monitored": "_tracking",
     "track_belief": "_tracking",
     "anisotropic_invariants": "_invariants",
+    "anisotropic_invariants_packed": "_invariants",
     "route_search": "_guide",
 }
 
@@ -194,9 +196,7 @@ SIGNATURES: dict[str, tuple[str, ...]] = {
     "ball_probabilities_array": (_signature(_VECTOR, _MATRIX, "float64"),),
     "avoid_gradient_array": (_signature(_VECTOR, _MATRIX, "float64"),),
     "quantile_radius_array": (_signature(_VECTOR, _MATRIX, "float64"),),
-    "exact_tube_step": (
-        _signature(_VECTOR, _MATRIX, _CUBE, *[_VECTOR] * 5, _MATRIX, _VECTOR),
-    ),
+    "exact_tube_step": (_signature(_VECTOR, _MATRIX, _CUBE, *[_VECTOR] * 5, _MATRIX, _VECTOR),),
     "track_update": (_signature(_MATRIX, _CUBE, _VECTOR, _MATRIX, "float64", _MATRIX),),
     "track_update_monitored": (
         _signature(
@@ -227,11 +227,12 @@ SIGNATURES: dict[str, tuple[str, ...]] = {
         ),
     ),
     # The tracker's discrete state, read-only views of Drake's vectors.
-    "track_belief": (
-        _signature(*[_READONLY_MATRIX] * 2, *["float64"] * 3, "int64", "int64"),
-    ),
+    "track_belief": (_signature(*[_READONLY_MATRIX] * 2, *["float64"] * 3, "int64", "int64"),),
     "anisotropic_invariants": (
         _signature(_VECTOR, _VECTOR, "float64", _MATRIX, _CUBE, _VECTOR, *["float64"] * 3),
+    ),
+    "anisotropic_invariants_packed": (
+        _signature(_VECTOR, _VECTOR, _VECTOR, _MATRIX, *["float64"] * 3),
     ),
     "route_search": (
         _signature(

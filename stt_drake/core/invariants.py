@@ -80,11 +80,19 @@ def evaluate_tube_invariants(
     output = np.asarray(output, dtype=float)
     tube = np.ascontiguousarray(tube, dtype=float)
     dimension = output.shape[0]
-    packed = belief.packed
-    if packed is not None:
+    port = belief.port_arrays
+    if port is not None and belief.packed is not None:
         kernel = backend.compiled("invariant_margins_packed", dimension)
         if kernel is not None:
-            return InvariantSample._make(kernel(output, tube, *packed, r_min))
+            return InvariantSample._make(kernel(output, tube, *port, r_min))
+    elif port is not None:  # each Σ_j exactly, read from the port vector
+        kernel = backend.compiled("anisotropic_invariants_packed", dimension)
+        if kernel is not None:
+            *sample, valid = kernel(
+                output, tube, *port, r_min, anisotropic.SYMMETRY_RTOL, anisotropic.MAX_CONDITION
+            )
+            if valid:  # else the arrays' path below names the Σ_j that breaks a rule
+                return InvariantSample._make(sample)
     center, radius = tube[:-1], float(tube[-1])
     obstacles = belief.obstacles()
     if obstacles.covariance is not None:

@@ -454,3 +454,38 @@ def test_the_monitor_skips_only_hits_below_double_precision(n):
             assert q_output == 1.0 and exact == pytest.approx(1.0, abs=1e-15)
         else:
             assert q_output < 1.0 and q_output == pytest.approx(exact, abs=1e-13)
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_the_monitor_reads_covariances_from_its_port_alike(n):
+    """The monitor's belief straight from its port (some slots inactive): the packed kernel
+    gives the margins and per-slot probabilities of the active obstacles' arrays (the same
+    contour integral on the same Σ_j; the output-to-centre distance may differ by one
+    rounding), unpacks nothing, and a broken Σ_j is still named by its obstacle index."""
+    from stt_drake.core.invariants import evaluate_tube_invariants
+
+    rng = np.random.default_rng(SEED + 80 + n)
+    count = 9
+    belief = field(rng, n, count, covariance=True, ratio=50.0)
+    active = np.ones(count, dtype=bool)
+    active[[2, 5]] = False
+    vector = GaussianBelief(belief.mean, belief.covariance, active).to_vector()
+    for _ in range(6):
+        output, center = rng.uniform(0.0, 4.0, (2, n))
+        tube = np.append(center, rng.uniform(0.05, 0.5))
+        port = ObstacleBelief.from_port(vector, n, belief.task, full_covariance=True)
+        packed = evaluate_tube_invariants(output, tube, port, 0.05)
+        assert "_obstacles" not in port.__dict__ and "slots" not in port.__dict__
+        arrays = ObstacleBelief.from_port(vector, n, belief.task, full_covariance=True)
+        direct = evaluate_tube_invariants(output, tube, arrays.obstacles(), 0.05)
+        np.testing.assert_allclose(packed.margins, direct.margins, rtol=0, atol=1e-15)
+        for name in ("output_avoid_probability", "tube_avoid_probability"):
+            values = getattr(packed, name)
+            np.testing.assert_array_equal(values[active], getattr(direct, name))
+            assert np.all(values[~active] == 1.0)
+    broken = belief.covariance.copy()
+    broken[4] = -broken[4]  # slot 4 is active obstacle 3 (slot 2 is inactive)
+    vector = GaussianBelief(belief.mean, broken, active).to_vector()
+    port = ObstacleBelief.from_port(vector, n, belief.task, full_covariance=True)
+    with pytest.raises(ValueError, match=r"^obstacle 3: covariance must be positive definite"):
+        evaluate_tube_invariants(output, tube, port, 0.05)
