@@ -23,13 +23,14 @@ No mass matrix, Coriolis, gravity or friction term: the law never reads a dynami
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any
 
 import numpy as np
 
+from stt_drake.core import backend
 from stt_drake.core.control import BoxFunnel, FunnelController, box_funnel_stage
 from stt_drake.core.invariants import tube_in_target
 
@@ -135,6 +136,33 @@ class ArmFunnelLaw:
     def funnel(self) -> BoxFunnel:
         return self.controller.funnels[0]
 
+    @cached_property
+    def _kernel(self) -> Callable[..., tuple] | None:
+        """The compiled arm_control, looked up once (read while it is selected)."""
+        return backend.compiled("arm_control")
+
+    @cached_property
+    def _kernel_arguments(self) -> tuple[np.ndarray | float, ...]:
+        """arm_control's last arguments: κ, the stage-2 funnel's p, q, μ per joint and the
+        saturation (the controller's), then the mapping's parameters as float arrays."""
+        mapping = self.mapping
+        joints = np.asarray(mapping.posture).shape[0]
+        kappa, start, end, rate, saturation = self.controller.compiled_arguments(joints)
+        return (
+            kappa,
+            start[0],
+            end[0],
+            rate[0],
+            saturation,
+            float(mapping.damping),
+            np.ascontiguousarray(mapping.posture, dtype=float),
+            float(mapping.posture_gain),
+            np.ascontiguousarray(mapping.position_lower, dtype=float),
+            np.ascontiguousarray(mapping.position_upper, dtype=float),
+            float(mapping.limit_margin),
+            float(mapping.limit_gain),
+        )
+
     def evaluate(
         self,
         t: float,
@@ -145,7 +173,21 @@ class ArmFunnelLaw:
         center: np.ndarray,
         radius: float,
     ) -> ArmControlEvaluation:
-        """The torque at time t from the measured TCP position y, q, q̇, J(q) and the tube."""
+        """The torque at time t from the measured TCP position y, q, q̇, J(q) and the tube.
+
+        One call of the compiled :func:`stt_drake.core._arm.arm_control` (unless the numpy
+        path is selected); non-finite or mis-shaped inputs go on to the reference below.
+        """
+        kernel = self._kernel if backend.using_compiled() else None
+        if kernel is not None:
+            torque, task, joint, errors, valid = kernel(
+                float(t),
+                *(np.asarray(x, dtype=float) for x in (position, q, v, jacobian, center)),
+                float(radius),
+                *self._kernel_arguments,
+            )
+            if valid:
+                return ArmControlEvaluation(torque, task, joint, errors)
         stage_one = self.stage_one.evaluate(t, position, center, radius)
         joint_velocity = self.mapping.reference(jacobian, stage_one.control, q)
         torque, e2 = box_funnel_stage(t, v, joint_velocity, self.funnel, self.controller.kappa[1])

@@ -75,6 +75,7 @@ KERNELS: dict[str, tuple[int, ...] | None] = {
     "anisotropic_invariants": (2, 3),  # invariants.evaluate_invariants with covariances
     "anisotropic_invariants_packed": (2, 3),  # the same, covariances from a port
     "route_search": None,  # route_search.search_route (the guide's A*)
+    "arm_control": None,  # arm.ArmFunnelLaw.evaluate
 }
 
 #: The compiled module (in :mod:`stt_drake.core`) of each kernel of :data:`KERNELS`.
@@ -102,6 +103,7 @@ KERNEL_MODULES: dict[str, str] = {
     "anisotropic_invariants": "_invariants",
     "anisotropic_invariants_packed": "_invariants",
     "route_search": "_guide",
+    "arm_control": "_arm",
 }
 
 _VECTOR = "float64[::1]"
@@ -109,6 +111,7 @@ _MATRIX = "float64[:, ::1]"
 _CUBE = "float64[:, :, ::1]"
 _VIEW = "Array(float64, {}, 'A', readonly=True)"
 _READONLY_MATRIX = "Array(float64, 2, 'C', readonly=True)"
+_FORTRAN_MATRIX = "float64[::1, :]"
 
 
 def _signature(*arguments: str) -> str:
@@ -257,6 +260,22 @@ SIGNATURES: dict[str, tuple[str, ...]] = {
             "int64",
         ),
     ),
+    # Drake's Jacobian is column-major (Eigen).
+    "arm_control": (
+        _signature(
+            "float64",
+            *[_VECTOR] * 3,
+            _FORTRAN_MATRIX,
+            _VECTOR,
+            "float64",
+            *[_VECTOR] * 4,
+            *["float64"] * 2,
+            _VECTOR,
+            "float64",
+            *[_VECTOR] * 2,
+            *["float64"] * 2,
+        ),
+    ),
 }
 
 #: The sources whose compiled code numba caches (modules of :mod:`stt_drake.core`): the
@@ -272,6 +291,7 @@ CACHED_SOURCES = (
     "_invariants",
     "_tracking",
     "_guide",
+    "_arm",
     "route_search",
     "anisotropic_contour",
     "constants",

@@ -118,10 +118,12 @@ class FunnelController:
     @cached_property
     def _kernel_arguments(self) -> dict[int, tuple[np.ndarray | float, ...]]:
         """Per dimension n: the compiled laws' last arguments, κ (N,), the funnels' p, q, μ
-        as (N − 1, n) float arrays and ERROR_SATURATION (:meth:`_arguments_for`)."""
+        as (N − 1, n) float arrays and ERROR_SATURATION (:meth:`compiled_arguments`)."""
         return {}
 
-    def _arguments_for(self, dimension: int) -> tuple[np.ndarray | float, ...]:
+    def compiled_arguments(self, dimension: int) -> tuple[np.ndarray | float, ...]:
+        """The compiled laws' last arguments for output dimension n = `dimension`: κ (N,),
+        the funnels' p, q, μ as (N − 1, n) arrays and ERROR_SATURATION (made once per n)."""
         arguments = self._kernel_arguments.get(dimension)
         if arguments is None:
             shape = (len(self.funnels), dimension)
@@ -149,7 +151,7 @@ class FunnelController:
         ``evaluate(t, states, tube[:-1], tube[-1]).control``."""
         kernel = self._packed_kernel if backend.using_compiled() else None
         n = len(tube) - 1
-        arguments = self._arguments_for(n)
+        arguments = self.compiled_arguments(n)
         if kernel is not None and len(states) == len(arguments[0]) * n:  # arguments[0]: κ
             control, _errors, finite = kernel(
                 float(t), np.asarray(states, dtype=float), np.asarray(tube, dtype=float), *arguments
@@ -174,7 +176,7 @@ class FunnelController:
             n = center.shape[0]
             if flat.shape[0] == self.stages * n:
                 control, errors, finite = kernel(
-                    float(t), flat, center, float(radius), *self._arguments_for(n)
+                    float(t), flat, center, float(radius), *self.compiled_arguments(n)
                 )
                 if finite:
                     stages = [errors[1 + k * n : 1 + (k + 1) * n] for k in range(self.stages - 1)]
