@@ -1,9 +1,9 @@
 """The benchmark history's kernel rows (pytest-benchmark; `make bench-history`,
 `make bench-compare`): one call each of the tube step through the public law (50
-obstacles, typical and worst fields, 2D and 3D; full covariances), the controller and the
-tracker update. The workloads are `stt-drake bench`'s (:mod:`stt_drake.bench.workloads`,
-:mod:`stt_drake.bench.kernels`), so a row here and its line in `stt-drake bench` time the
-same call."""
+obstacles, typical and worst fields, 2D and 3D; full covariances), the controller, the
+tracker update and the arm's law. The workloads are `stt-drake bench`'s
+(:mod:`stt_drake.bench.workloads`, :mod:`stt_drake.bench.kernels`), so a row here and its
+line in `stt-drake bench` time the same call."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from stt_drake.bench.kernels import controller_cases, tracker_workload
+from stt_drake.bench.loops import DIAGRAMS
 from stt_drake.bench.workloads import anisotropic_field, obstacle_field
 from stt_drake.core.tracking import monitored_update, update
 
@@ -54,3 +55,21 @@ def test_monitored_tracker_update(benchmark, dimension):
     arguments = (work.table, every, 0.1, work.z, 1e-3, work.noise, work.monitored.adaptation)
     updated = benchmark(monitored_update, *arguments)
     assert np.all(np.isfinite(updated[0]))  # the posterior means
+
+
+def test_arm_law(benchmark):
+    """The FR3's law (stage 1, the damped least-squares mapping, stage 2) of
+    franka_pick_place_case1 at its initial configuration, the tube 5 cm from the hand."""
+    from stt_drake.assembly import load_scenario
+    from stt_drake.assembly.laws import make_arm_law
+    from stt_drake.systems.plants.franka import ArmKinematics
+
+    scenario = load_scenario(DIAGRAMS / "franka_pick_place_case1.yaml")
+    law = make_arm_law(scenario)
+    q = np.asarray(scenario.plant.initial_configuration, dtype=float)
+    kinematics = ArmKinematics()
+    position, jacobian = kinematics.position(q), kinematics.jacobian(q)
+    center = position + np.array([0.05, 0.0, 0.0])
+    arguments = (1.5, position, q, np.full(7, 0.05), jacobian, center, 0.08)
+    evaluation = benchmark(law.evaluate, *arguments)
+    assert np.all(np.isfinite(evaluation.torque))
