@@ -282,21 +282,25 @@ def test_update_recovers_from_a_belief_jump_at_the_bounded_speed():
     assert q_true(center, [1.0, -0.05], 0.1, 0.3) > 0.9
 
 
+def random_updates(rng: np.random.Generator, tube: TubeLaw, n: int, count: int):
+    """`count` random (belief of 4 obstacles, rate bounds, centre, 3D circulation axes)."""
+    for _ in range(count):
+        now = belief(rng.uniform(0, 4, (4, n)), rng.uniform(0.03, 0.4, 4), 0.2, 0.9)
+        bounds = BeliefRateBounds(rng.uniform(0, 1, 4), rng.uniform(0, 0.1, 4))
+        center = rng.uniform(0, 4, n)
+        axes = None
+        if n == 3:
+            axes = carry_circulation(
+                np.zeros((4, 3)), center, now.mean, np.ones(4, bool), tube.target - center
+            )
+        yield now, bounds, center, axes
+
+
 @pytest.mark.parametrize("n", [2, 3])
 def test_compiled_and_numpy_updates_agree(n):
     rng = np.random.default_rng(RNG_SEED + 11 * n)
     tube = law(np.full(n, 4.0), max_center_speed=1.5)
-    for _ in range(150):
-        now = belief(rng.uniform(0, 4, (4, n)), rng.uniform(0.03, 0.4, 4), 0.2, 0.9)
-        bounds = BeliefRateBounds(rng.uniform(0, 1, 4), rng.uniform(0, 0.1, 4))
-        center = rng.uniform(0, 4, n)
-        axes = (
-            carry_circulation(
-                np.zeros((4, 3)), center, now.mean, np.ones(4, bool), tube.target - center
-            )
-            if n == 3
-            else None
-        )
+    for now, bounds, center, axes in random_updates(rng, tube, n, 150):
         h = rng.choice([0.01, 0.05, 0.1])
         compiled = tube.advance(center, now, h, bounds, axes)
         with backend.pure_numpy():
@@ -318,15 +322,7 @@ def test_an_update_from_a_port_belief_reads_the_vector_alike(n):
     closed form from the vector and unpacks nothing, and updates as from the arrays."""
     rng = np.random.default_rng(RNG_SEED + 17 * n)
     tube = law(np.full(n, 4.0), max_center_speed=1.5)
-    for _ in range(60):
-        now = belief(rng.uniform(0, 4, (4, n)), rng.uniform(0.03, 0.4, 4), 0.2, 0.9)
-        bounds = BeliefRateBounds(rng.uniform(0, 1, 4), rng.uniform(0, 0.1, 4))
-        center = rng.uniform(0, 4, n)
-        axes = None
-        if n == 3:
-            axes = carry_circulation(
-                np.zeros((4, 3)), center, now.mean, np.ones(4, bool), tube.target - center
-            )
+    for now, bounds, center, axes in random_updates(rng, tube, n, 60):
         port = ObstacleBelief.from_port(now.to_vector(), n, now.task)
         packed = tube.advance(center, port, 0.05, bounds, axes, radius=0.3)
         assert "_obstacles" not in port.__dict__
