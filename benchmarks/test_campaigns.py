@@ -1,31 +1,22 @@
-"""The benchmark history's campaign rows: one whole campaign of each kind on one local
-worker process (`workers=1`), from the scenario file to campaign.json, figures off. The
+"""The benchmark history's campaign rows: one whole campaign of each kind of
+:data:`stt_drake.bench.campaigns.CAMPAIGNS` (the campaign rows of `stt-drake bench`) on one
+local worker process (`workers=1`), from the scenario file to campaign.json, figures off. The
 saved row's ``extra_info`` holds the throughput, ``runs_per_core_second``: runs divided by
 the median wall time of the campaign, which on one worker is about the core-seconds it
 used (the parent process only waits)."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 
+from stt_drake.bench.campaigns import CAMPAIGNS
 from stt_drake.bench.loops import DIAGRAMS
 from stt_drake.campaign import CampaignSpec, run_campaign
 
-ROOT = Path(__file__).resolve().parents[1]
-#: (kind, scenario file, runs): the true-obstacle draws around one simulated loop, redrawn
-#: random fields simulated one by one, and the tracked loop simulated end to end.
-CAMPAIGNS = [
-    ("true-obstacles", DIAGRAMS / "omni_hardware_case1.yaml", 2000),
-    ("randomisation", ROOT / "tests" / "data" / "random_small.yaml", 6),
-    ("end-to-end", DIAGRAMS / "omni_tracked.yaml", 2),
-]
 
-
-@pytest.mark.parametrize(("kind", "path", "runs"), CAMPAIGNS, ids=[c[0] for c in CAMPAIGNS])
-def test_campaign(benchmark, tmp_path, kind, path, runs):
-    spec = CampaignSpec(scenario=str(path), kind=kind, runs=runs, seed=0)
+@pytest.mark.parametrize(("kind", "name", "runs"), CAMPAIGNS, ids=[c[0] for c in CAMPAIGNS])
+def test_campaign(benchmark, tmp_path, kind, name, runs):
+    spec = CampaignSpec(scenario=str(DIAGRAMS / f"{name}.yaml"), kind=kind, runs=runs, seed=0)
     folders = iter(range(1_000))
 
     def campaign() -> dict:

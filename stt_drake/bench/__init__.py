@@ -19,7 +19,9 @@ the numba kernels):
    each with the continuous tube and the fixed-rate one (FIXED_RATE_HZ), run in interleaved
    pairs, and the median ratio fixed-rate / continuous over the pairs;
 4. the guide's replan time and its cost to a closed loop (:mod:`stt_drake.bench.guide`);
-5. a PNG of tube-step cost against obstacle count.
+5. a PNG of tube-step cost against obstacle count;
+6. runs per core-second of one campaign of each kind on one worker
+   (:mod:`stt_drake.bench.campaigns`).
 
 :func:`run_benchmark` returns them as one JSON-ready dict; the command's options, its text
 report and its exit code are in :mod:`stt_drake.cli.bench`. Speed targets are reported,
@@ -28,11 +30,13 @@ never enforced.
 Modules, one per job: :mod:`~stt_drake.bench.workloads` (the obstacle fields and the
 scipy baseline), :mod:`~stt_drake.bench.timing` (:func:`time_call`),
 :mod:`~stt_drake.bench.kernels` (rows 1-2 and the tracker), :mod:`~stt_drake.bench.loops`
-(row 3 and the profile), :mod:`~stt_drake.bench.guide` (row 4) and
+(row 3 and the profile), :mod:`~stt_drake.bench.guide` (row 4),
+:mod:`~stt_drake.bench.campaigns` (row 6) and
 :mod:`~stt_drake.bench.results` (:func:`run_benchmark`, the targets); the figure (row 5)
 is :func:`stt_drake.plotting.bench.plot_tube_step_scaling`.
 """
 
+from stt_drake.bench.campaigns import CAMPAIGNS, bench_campaigns
 from stt_drake.bench.guide import bench_guide_plans, bench_guided_loop
 from stt_drake.bench.kernels import (
     COUNTS,
@@ -62,6 +66,7 @@ from stt_drake.bench.workloads import (
 )
 
 __all__ = [
+    "CAMPAIGNS",
     "COUNTS",
     "DIAGRAMS",
     "FIELDS",
@@ -73,6 +78,7 @@ __all__ = [
     "anisotropic_field",
     "baseline_tube_step",
     "bench_anisotropic_tube_steps",
+    "bench_campaigns",
     "bench_closed_loop",
     "bench_controller",
     "bench_fixed_rate_against_continuous",

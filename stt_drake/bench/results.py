@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from stt_drake.bench.campaigns import bench_campaigns
 from stt_drake.bench.floor import bench_drake_floor
 from stt_drake.bench.guide import bench_guide_plans, bench_guided_loop
 from stt_drake.bench.kernels import (
@@ -42,6 +43,7 @@ def run_benchmark(
     loop_duration: float | None = None,
     counts: tuple[int, ...] = COUNTS,
     out_dir: Path = Path("results/bench"),
+    campaign_scale: float | None = 1.0,
 ) -> dict[str, Any]:
     """Every measurement of the module docstring, as one JSON-ready dict.
 
@@ -49,7 +51,9 @@ def run_benchmark(
     field, by "2d"/"3d" and count), ``worst_case_tube_step_us`` and
     ``worst_case_speedup_vs_baseline`` (no pruning possible), ``controller_us`` ("stage1",
     "stage2"), ``realtime_factor`` (by scenario; "not available" if its file is missing),
-    ``derivative_evaluations_per_s``, ``over_drake_floor`` (each loop's wall µs per
+    ``derivative_evaluations_per_s``, ``campaign_runs_per_core_second`` (by campaign kind,
+    :func:`stt_drake.bench.campaigns.bench_campaigns` with `campaign_scale` times its runs;
+    None: not measured), ``over_drake_floor`` (each loop's wall µs per
     derivative evaluation over :func:`stt_drake.bench.floor.bench_drake_floor`'s, measured
     in the same run), ``targets`` (each with its value and whether it is
     met), ``details`` (spreads and everything else), ``machine``, ``plot``.
@@ -66,6 +70,7 @@ def run_benchmark(
             bench_fixed_rate_against_continuous(name, loop_repeats, loop_duration)
         )
     floor = bench_drake_floor(loop_repeats)
+    campaigns = {} if campaign_scale is None else bench_campaigns(campaign_scale)
     plot = save_scaling_figure(tube, counts, out_dir / "tube_step_scaling.png")
 
     def table(field: str, key: str) -> dict[str, dict[str, float]]:
@@ -109,6 +114,9 @@ def run_benchmark(
             name: loop.get("derivative_evaluations_per_s", "not available")
             for name, loop in loops.items()
         },
+        "campaign_runs_per_core_second": {
+            kind: row["runs_per_core_second"] for kind, row in campaigns.items()
+        },
         "over_drake_floor": {
             name: 1e6 / loop["derivative_evaluations_per_s"] / floor["us_per_derivative_evaluation"]
             for name, loop in loops.items()
@@ -116,6 +124,7 @@ def run_benchmark(
         },
         "details": {
             "drake_floor": floor,
+            "campaigns": campaigns,
             "tube_step": tube,
             "anisotropic_tube_step": anisotropic,
             "tracker_update": tracking,

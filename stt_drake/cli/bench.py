@@ -14,7 +14,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from stt_drake.bench import COUNTS, FIXED_RATE_HZ, SCENARIOS, profile_closed_loop, run_benchmark
+from stt_drake.bench import (
+    CAMPAIGNS,
+    COUNTS,
+    FIXED_RATE_HZ,
+    SCENARIOS,
+    profile_closed_loop,
+    run_benchmark,
+)
 from stt_drake.cli.main import BadInputError
 from stt_drake.core import backend
 
@@ -119,6 +126,15 @@ def format_table(result: dict[str, Any]) -> str:
     )
     lines.append("")
     lines.append(f"5. scaling plot: {result['plot']}")
+    campaigns = result["details"]["campaigns"]
+    if campaigns:
+        lines.append("")
+        lines.append("6. one campaign of each kind on one worker process, runs per core-second")
+        for kind, row in campaigns.items():
+            lines.append(
+                f"  {kind:<15} {row['scenario']:<22} {row['runs']:>5} runs in "
+                f"{row['wall_s']:.2f} s: {row['runs_per_core_second']:.3g} runs per core-second"
+            )
     profile = result.get("profile")
     if profile and profile["available"]:
         lines.append("")
@@ -141,6 +157,8 @@ def format_table(result: dict[str, Any]) -> str:
 def _bench(args: argparse.Namespace) -> bool:
     if args.repeats < 1 or args.loop_repeats < 1 or min(args.counts) < 1:
         raise BadInputError("stt-drake bench: --repeats, --loop-repeats and --counts must be ≥ 1")
+    if not args.campaign_scale > 0.0:
+        raise BadInputError("stt-drake bench: --campaign-scale must be a number > 0")
     if not backend.using_compiled():
         print(
             "stt-drake bench: STT_DRAKE_PURE_NUMPY is set, timing the numpy path", file=sys.stderr
@@ -151,6 +169,7 @@ def _bench(args: argparse.Namespace) -> bool:
         loop_duration=args.loop_duration,
         counts=tuple(args.counts),
         out_dir=args.out,
+        campaign_scale=None if args.no_campaigns else args.campaign_scale,
     )
     if args.profile:
         result["profile"] = profile_closed_loop(SCENARIOS[0])
@@ -190,6 +209,15 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         default=Path("results/bench"),
         help="folder of the PNG (default: results/bench/)",
     )
+    parser.add_argument(
+        "--campaign-scale",
+        type=float,
+        default=1.0,
+        help="the campaign rows' runs times this (default 1: "
+        + ", ".join(f"{runs} {kind}" for kind, _name, runs in CAMPAIGNS)
+        + ")",
+    )
+    parser.add_argument("--no-campaigns", action="store_true", help="leave out the campaign rows")
     parser.add_argument(
         "--profile",
         action="store_true",

@@ -67,10 +67,20 @@ def test_missing_scenario_is_not_available():
 def test_bench_json_report(tmp_path, capsys):
     code = main([
         "bench", "--json", "--repeats", "2", "--loop-repeats", "1", "--loop-duration", "1.0",
-        "--counts", "10", "50", "--out", str(tmp_path),
+        "--counts", "10", "50", "--out", str(tmp_path), "--campaign-scale", "0.001",
     ])
     assert code == 0
     result = json.loads(capsys.readouterr().out)
+    # one campaign of each kind on one worker; at scale 0.001: 2, 1 and 1 runs
+    campaigns = result["details"]["campaigns"]
+    assert {kind: row["runs"] for kind, row in campaigns.items()} == {
+        "true-obstacles": 2, "randomisation": 1, "end-to-end": 1,
+    }
+    for kind, row in campaigns.items():
+        assert row["wall_s"] > 0.0
+        assert result["campaign_runs_per_core_second"][kind] == pytest.approx(
+            row["runs"] / row["wall_s"]
+        )
     for key in ("tube_step_us", "baseline_tube_step_us", "speedup_vs_baseline",
                 "worst_case_tube_step_us", "controller_us", "realtime_factor", "targets"):
         assert key in result
@@ -140,11 +150,15 @@ def test_bench_json_report(tmp_path, capsys):
 @pytest.mark.slow
 def test_bench_table_and_bad_input(tmp_path, capsys):
     code = main(["bench", "--repeats", "1", "--loop-repeats", "1", "--loop-duration", "0.5",
-                 "--counts", "10", "--out", str(tmp_path)])
+                 "--counts", "10", "--out", str(tmp_path), "--no-campaigns"])
     assert code == 0
     out = capsys.readouterr().out
     assert "one tube step" in out and "controller evaluation" in out and "closed loop" in out
+    assert "one campaign of each kind" not in out
     assert main(["bench", "--repeats", "0"]) == 2
+    for scale in ("0", "-1", "nan"):
+        assert main(["bench", "--campaign-scale", scale]) == 2
+    assert "--campaign-scale must be a number > 0" in capsys.readouterr().err
 
 
 def test_profile_lists_functions_by_own_time():
