@@ -213,7 +213,9 @@ def advance(
     certified too (:mod:`stt_drake.core.fixed_rate`, "The radius over a period").
 
     One call of the compiled :func:`stt_drake.core._tube.tube_advance` for n ≤ 3 (unless
-    the numpy path is selected); the steps below are its reference: :func:`_integrate`,
+    the numpy path is selected; a belief from a port with every slot active:
+    :func:`stt_drake.core._tube.tube_advance_packed`, which reads the port vector itself);
+    the steps below are its reference: :func:`_integrate`,
     :func:`_start_radius`, :func:`_pull_back`, then the end radius and θ_j at the end.
     `belief`: the obstacles (all of them: a fixed-rate tube needs every slot active).
 

@@ -71,11 +71,13 @@ def evaluate_tube_invariants(
     (:meth:`ObstacleBelief.in_slots`; an inactive slot reads 1 and takes no part in the
     margins).
 
-    With full covariances each Σ_j exactly (:func:`_anisotropic_probabilities`); else one
-    call of the compiled :func:`stt_drake.core._kernels.invariant_margins_packed` (a belief
-    from a port: the monitor's hot path) or :func:`stt_drake.core._kernels.invariant_margins`
-    for n ≤ 3 (unless the numpy path is selected, see :mod:`stt_drake.core.backend`), else
-    numpy.
+    With full covariances each Σ_j exactly: one call of the compiled
+    :func:`stt_drake.core._invariants.anisotropic_invariants_packed` for a belief from a
+    port (the monitor's hot path), else :func:`_anisotropic_probabilities` (which also names
+    a Σ_j that breaks a rule). Otherwise one call of the compiled
+    :func:`stt_drake.core._kernels.invariant_margins_packed` (a belief from a port) or
+    :func:`stt_drake.core._kernels.invariant_margins` for n ≤ 3 (unless the numpy path is
+    selected, see :mod:`stt_drake.core.backend`), else numpy.
     """
     output = np.asarray(output, dtype=float)
     tube = np.ascontiguousarray(tube, dtype=float)

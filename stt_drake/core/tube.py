@@ -283,9 +283,11 @@ class TubeLaw:
         at the centre `center` (n,), per slot of `belief` (:meth:`ObstacleBelief.in_slots`:
         an inactive slot never reaches ċ or r and reads q = 1, d̂ = +∞, θ = 0).
 
-        The one dispatch of the law: a belief from a port (isotropic) in one call of the
-        compiled :func:`stt_drake.core._tube.tube_step_packed`; otherwise the obstacles'
-        arrays in one call of :func:`stt_drake.core._tube.tube_step` (σ_j) or
+        The one dispatch of the law: a belief from a port in one call of the compiled
+        :func:`stt_drake.core._tube.tube_step_packed` (σ_j) or
+        :func:`stt_drake.core._tube.exact_tube_step_packed` (Σ_j), which read the port
+        vector themselves; otherwise the obstacles' arrays in one call of
+        :func:`stt_drake.core._tube.tube_step` (σ_j) or
         :func:`stt_drake.core._tube.exact_tube_step` (Σ_j), for the
         dimensions they are compiled for and unless the numpy path is selected
         (:mod:`stt_drake.core.backend`), else :func:`stt_drake.core.tube_reference.
