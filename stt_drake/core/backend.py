@@ -118,6 +118,13 @@ def _signature(*arguments: str) -> str:
     return f"({', '.join(arguments)})"
 
 
+#: The tube step on a port: centre, port vector, task rows, k2, k3, circulation, constants.
+_PORT_STEP = _signature(_VECTOR, _VECTOR, _MATRIX, _VECTOR, _VECTOR, _MATRIX, _VECTOR)
+#: The fixed-rate update's arguments after the obstacles' and the gains: circulation,
+#: constants, prune_above, duration, start radius, max_attempts.
+_ADVANCE_TAIL = (_MATRIX, _VECTOR, "float64", "float64", "float64", "int64")
+
+
 #: The argument types (numba type strings) each kernel of :data:`KERNELS` is called with by
 #: the library's callers — numba compiles one specialisation per combination of types
 #: (array layouts included), so :func:`warm_up` compiles exactly these. A caller passing
@@ -127,39 +134,10 @@ SIGNATURES: dict[str, tuple[str, ...]] = {
     "chi_sf_array": (_signature(_VECTOR, _VECTOR, "int64"),),
     "chi_isf_array": (_signature(_VECTOR, _VECTOR, "int64"),),
     "tube_step": (_signature(_VECTOR, _MATRIX, *[_VECTOR] * 8, _MATRIX, _VECTOR),),
-    "tube_step_packed": (
-        _signature(_VECTOR, _VECTOR, _MATRIX, _VECTOR, _VECTOR, _MATRIX, _VECTOR),
-    ),
-    "exact_tube_step_packed": (
-        _signature(_VECTOR, _VECTOR, _MATRIX, _VECTOR, _VECTOR, _MATRIX, _VECTOR),
-    ),
-    "tube_advance": (
-        _signature(
-            _VECTOR,
-            _MATRIX,
-            *[_VECTOR] * 8,
-            _MATRIX,
-            _VECTOR,
-            "float64",
-            "float64",
-            "float64",
-            "int64",
-        ),
-    ),
-    "tube_advance_packed": (
-        _signature(
-            _VECTOR,
-            _VECTOR,
-            _MATRIX,
-            *[_VECTOR] * 4,
-            _MATRIX,
-            _VECTOR,
-            "float64",
-            "float64",
-            "float64",
-            "int64",
-        ),
-    ),
+    "tube_step_packed": (_PORT_STEP,),
+    "exact_tube_step_packed": (_PORT_STEP,),
+    "tube_advance": (_signature(_VECTOR, _MATRIX, *[_VECTOR] * 8, *_ADVANCE_TAIL),),
+    "tube_advance_packed": (_signature(_VECTOR, _VECTOR, _MATRIX, *[_VECTOR] * 4, *_ADVANCE_TAIL),),
     "invariant_margins": (
         _signature(_VECTOR, _VECTOR, "float64", _MATRIX, _VECTOR, _VECTOR, _VECTOR, "float64"),
     ),

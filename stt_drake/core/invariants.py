@@ -83,11 +83,11 @@ def evaluate_tube_invariants(
     tube = np.ascontiguousarray(tube, dtype=float)
     dimension = output.shape[0]
     port = belief.port_arrays
-    if port is not None and belief.packed is not None:
+    if port is not None and belief.packed is not None:  # σ_j read from the port vector
         kernel = backend.compiled("invariant_margins_packed", dimension)
         if kernel is not None:
             return InvariantSample._make(kernel(output, tube, *port, r_min))
-    elif port is not None:  # each Σ_j exactly, read from the port vector
+    if port is not None and belief.packed is None:  # each Σ_j exactly, from the port vector
         kernel = backend.compiled("anisotropic_invariants_packed", dimension)
         if kernel is not None:
             *sample, valid = kernel(
