@@ -14,6 +14,7 @@ No timing assertions: speed lives in ``stt-drake bench``.
 
 from __future__ import annotations
 
+import itertools
 import os
 import subprocess
 import sys
@@ -127,6 +128,23 @@ def test_marcum_q1_extreme_arguments():
         assert 0.0 <= cdf <= 0.5 * b * b
 
 
+def test_bessel_recurrence_starts_where_the_tail_is_below_1e_17():
+    # Start N(x) = ⌊9√x + 8⌋ (_miller_start): the ratio bound I_k/I_{k−1} <
+    # e^{−asinh((k − ½)/x)} holds (against scipy), and its product up to N(x) is < e^{−39.2}
+    # for x ≤ 1e7: N grows and the sum falls with x, so N(x_i) at x_{i+1} covers [x_i, x_{i+1}].
+    grid = np.logspace(-30, 7, 6000)
+    for low, high in itertools.pairwise(grid):
+        k = np.arange(1, kernels._miller_start(low) + 1)
+        assert np.arcsinh((k - 0.5) / high).sum() >= 39.2, low
+    k = np.arange(1, 700)
+    for x in np.logspace(-3, 4, 50):
+        tail = special.ive(k, x)
+        seen = tail > 1e-290
+        ratio = tail[seen] / special.ive(k - 1, x)[seen]
+        assert np.all(ratio < (x / (k - 0.5 + np.hypot(x, k - 0.5)))[seen]), x
+        assert special.ive(kernels._miller_start(x), x) < 1e-17 * special.ive(0, x), x
+
+
 @pytest.mark.parametrize("n", DIMENSIONS)
 def test_sf_special_values(n):
     assert kernels.chi_sf(0.0, 3.0, n) == 1.0
@@ -197,6 +215,27 @@ def test_quantile_bracket_bounds_hold(n):
             u = -np.log(level)
             assert max(a - special.ndtri(level), 0.0) <= s * (1 + 1e-12) + 1e-300
             assert s <= a + np.sqrt(n + 2 * np.sqrt(n * u) + 2 * u)
+
+
+@pytest.mark.parametrize("n", DIMENSIONS)
+def test_halley_error_bound_holds(n):
+    # The quantile returns s + step unevaluated once _halley_error_bound is below half an ulp
+    # of s: one Halley step from s near the root s* must land within that bound of s*
+    # (up to the rounding of sf and f there), and the bound must be finite near the root.
+    rng = np.random.default_rng(20 + n)
+    for _ in range(200):
+        a = float(np.exp(rng.uniform(np.log(1e-2), np.log(300.0))))
+        level = float(rng.uniform(0.05, 0.95))
+        root = kernels.chi_isf(level, a, n)
+        for offset in [-1e-4, -1e-5, 1e-5, 1e-4]:
+            s = root + offset * min(root, 1.0)
+            sf, cdf, pdf, dlog = kernels.chi_sf_pdf(s, a, n)
+            step = ((1.0 - level) - cdf if level > 0.5 else sf - level) / pdf
+            step /= 1.0 + 0.5 * step * dlog
+            bound = kernels._halley_error_bound(step, s, a, n, dlog)
+            rounding = 8 * np.finfo(float).eps * (root + 1.0 / pdf)
+            assert abs(s + step - root) <= bound + rounding, (a, level, offset)
+            assert np.isfinite(bound)
 
 
 # --------------------------------------------------------------------------------------
