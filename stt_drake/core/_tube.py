@@ -31,10 +31,10 @@ from stt_drake.core._anisotropic_tube import (
 )
 from stt_drake.core._kernels import (
     _distance,
-    active_covariances,
     active_slots,
     chi_isf_given,
     chi_sf,
+    largest_variance,
     ndtri,
 )
 from stt_drake.core.backend import jit_options
@@ -126,6 +126,7 @@ def tube_step(
     spread: np.ndarray,
     circulation: np.ndarray,
     constants: np.ndarray,
+    active: np.ndarray,
 ) -> np.ndarray:
     """One tube-law evaluation (:meth:`stt_drake.core.tube.TubeLaw.evaluate`) in one pass.
 
@@ -141,12 +142,17 @@ def tube_step(
     laid out as :data:`TUBE_CONSTANTS` followed by η (few arguments: numba's dispatch costs
     per argument).
 
+    The obstacles may be the slots of a belief port read in place (:func:`_port_pass`):
+    `mean` then holds μ_j in its first n columns (the port table), and `active` holds one
+    flag per slot (empty: every row is an obstacle); an inactive slot stays at q = 1,
+    d̂ = +∞, θ = 0, outside ċ and r.
+
     Returns:
         (ċ, r, q, d̂, θ) in one array (:func:`step_parts`): one array to box on return
         costs less than four.
     """
     k1, r_min, r_max, nu, linear_zone, prune_above, max_speed, target = tube_constants(constants)
-    count, n = mean.shape
+    count, n = mean.shape[0], center.shape[0]
     out = np.empty(n + 1 + 3 * count)
     rate, _radius, q, d_hat, theta = step_parts(out, n)
     theta[:] = 0.0
@@ -162,7 +168,12 @@ def tube_step(
     no_axis = work[:0]
     _attraction(center, target, k1, linear_zone, goal, rate)
     inflated = reach.shape[0] == count
+    flagged = active.shape[0] == count
     for j in range(count):
+        if flagged and not active[j] > 0.5:
+            q[j] = 1.0
+            d_hat[j] = math.inf
+            continue
         if uncertainty.ndim == 1:
             distance = _distance(center, mean, j)
             qj, dj = isotropic_obstacle(
@@ -279,6 +290,7 @@ def exact_tube_step(
         no_inflation,
         circulation,
         constants,
+        no_inflation,  # no activity flags: every obstacle acts
     )
 
 
@@ -512,17 +524,6 @@ def period_avoid_probability(
 
 # --------------------------------------------------------------------------- belief port
 @njit(**_JIT)
-def _per_slot(values: np.ndarray, slots: np.ndarray) -> np.ndarray:
-    """`values` (one per slot, or a single one) at `slots`."""
-    if values.shape[0] == 1:
-        return values
-    out = np.empty(slots.shape[0])
-    for k in range(slots.shape[0]):
-        out[k] = values[slots[k]]
-    return out
-
-
-@njit(**_JIT)
 def tube_step_packed(
     center: np.ndarray,
     belief: np.ndarray,
@@ -532,13 +533,16 @@ def tube_step_packed(
     circulation: np.ndarray,
     constants: np.ndarray,
 ) -> np.ndarray:
-    """:func:`tube_step` on a belief port vector and the task rows ([r_o, ε, p_d] per slot):
-    the active slots only, σ_j = √λ_max(Σ_j); per slot outputs with q = 1, d̂ = +∞, θ = 0 in
-    the inactive slots (they never reach ċ or r); laid out as :func:`tube_step`'s result."""
-    slots, mean, sigma, rows = active_slots(belief, task, center.shape[0])
-    return _step_over_slots(
-        center, slots, mean, sigma, rows, k2, k3, circulation, constants, task.shape[0]
-    )
+    """:func:`tube_step` on a belief port vector and the task rows ([r_o, ε, p_d] per slot),
+    read in place slot by slot, σ_j = √λ_max(Σ_j); q = 1, d̂ = +∞, θ = 0 in the inactive
+    slots (they never reach ċ or r); laid out as :func:`tube_step`'s result."""
+    n = center.shape[0]
+    table = belief.reshape((-1, n + n * n + 1))
+    sigma = np.zeros(table.shape[0])  # an inactive slot's is never read
+    for j in range(table.shape[0]):
+        if table[j, n + n * n] > 0.5:
+            sigma[j] = math.sqrt(largest_variance(table, j, n))
+    return _port_pass(center, table, sigma, task, k2, k3, circulation, constants)
 
 
 @njit(**_JIT)
@@ -553,61 +557,45 @@ def exact_tube_step_packed(
 ) -> np.ndarray:
     """:func:`tube_step_packed` with each active slot's Σ_j exactly (:func:`exact_tube_step`):
     the port vector is read here, so a tube with full covariances pays no unpacking."""
-    slots, mean, covariance, rows = active_covariances(belief, task, center.shape[0])
-    return _step_over_slots(
-        center, slots, mean, covariance, rows, k2, k3, circulation, constants, task.shape[0]
-    )
+    n = center.shape[0]
+    table = belief.reshape((-1, n + n * n + 1))
+    covariance = np.empty((table.shape[0], n, n))
+    for j in range(table.shape[0]):
+        for i in range(n):
+            for column in range(n):
+                covariance[j, i, column] = table[j, n + i * n + column]
+    return _port_pass(center, table, covariance, task, k2, k3, circulation, constants)
 
 
 @njit(**_JIT)
-def _step_over_slots(
+def _port_pass(
     center: np.ndarray,
-    slots: np.ndarray,
-    mean: np.ndarray,
+    table: np.ndarray,
     uncertainty: np.ndarray,
-    rows: np.ndarray,
+    task: np.ndarray,
     k2: np.ndarray,
     k3: np.ndarray,
     circulation: np.ndarray,
     constants: np.ndarray,
-    count: int,
 ) -> np.ndarray:
-    """:func:`exact_tube_step` on the active slots' arrays (σ_j or Σ_j) of a port with
-    `count` slots, spread back over every slot (q = 1, d̂ = +∞, θ = 0 in the inactive
-    ones)."""
-    n = center.shape[0]
-    axes = circulation
-    if circulation.shape[0] == count and slots.shape[0] < count:
-        axes = np.empty((slots.shape[0], circulation.shape[1]))
-        for k in range(slots.shape[0]):
-            axes[k] = circulation[slots[k]]
-    active = exact_tube_step(
+    """:func:`tube_step` over the slots of a port `table` (μ in its first n columns, the
+    activity flag last) with their σ_j or Σ_j and task rows: nothing is copied per slot."""
+    no_inflation = task[:0, 0]
+    return tube_step(
         center,
-        mean,
+        table,
         uncertainty,
-        rows[:, 0],
-        rows[:, 1],
-        rows[:, 2],
-        _per_slot(k2, slots),
-        _per_slot(k3, slots),
-        axes,
+        task[:, 0],
+        task[:, 1],
+        task[:, 2],
+        k2,
+        k3,
+        no_inflation,
+        no_inflation,
+        circulation,
         constants,
+        table[:, table.shape[1] - 1],
     )
-    if slots.shape[0] == count:
-        return active
-    rate, radius, q_active, d_active, theta_active = step_parts(active, n)
-    out = np.empty(n + 1 + 3 * count)
-    _rate, _radius, q, d_hat, theta = step_parts(out, n)
-    out[:n] = rate
-    out[n] = radius
-    q[:] = 1.0
-    d_hat[:] = np.inf
-    theta[:] = 0.0
-    for k in range(slots.shape[0]):
-        q[slots[k]] = q_active[k]
-        d_hat[slots[k]] = d_active[k]
-        theta[slots[k]] = theta_active[k]
-    return out
 
 
 # --------------------------------------------------------------------------- fixed-rate update
@@ -727,9 +715,10 @@ def tube_advance(
     k1, r_min, r_max, nu, _zone, _prune, max_speed, target = tube_constants(constants)
     reach2, spread2 = _inflation(sigma, mean_speed, sigma_rate, 2.0 * duration)
     position = center.copy()
-    step_out = tube_step(
-        position, mean, sigma, radius, epsilon, p_d, k2, k3, reach2, spread2, circulation, constants
-    )
+    # tube_step's arguments after the point: the look-ahead law, every obstacle acting
+    look_ahead = (mean, sigma, radius, epsilon, p_d, k2, k3, reach2, spread2)
+    look_ahead = (*look_ahead, circulation, constants, reach2[:0])
+    step_out = tube_step(position, *look_ahead)
     rate, _r, q, _d, theta = step_parts(step_out, n)
     remaining = duration
     step = duration
@@ -760,20 +749,7 @@ def tube_advance(
             scale = max_speed * step / length if length > max_speed * step else 1.0
             for i in range(n):
                 candidate[i] = position[i] + scale * candidate[i]
-        candidate_out = tube_step(
-            candidate,
-            mean,
-            sigma,
-            radius,
-            epsilon,
-            p_d,
-            k2,
-            k3,
-            reach2,
-            spread2,
-            circulation,
-            constants,
-        )
+        candidate_out = tube_step(candidate, *look_ahead)
         rate_c, _r, q_c, _d, theta_c = step_parts(candidate_out, n)
         keeps = True
         for j in range(count):

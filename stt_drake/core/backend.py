@@ -133,7 +133,7 @@ _ADVANCE_TAIL = (_MATRIX, _VECTOR, "float64", "float64", "float64", "int64")
 SIGNATURES: dict[str, tuple[str, ...]] = {
     "chi_sf_array": (_signature(_VECTOR, _VECTOR, "int64"),),
     "chi_isf_array": (_signature(_VECTOR, _VECTOR, "int64"),),
-    "tube_step": (_signature(_VECTOR, _MATRIX, *[_VECTOR] * 8, _MATRIX, _VECTOR),),
+    "tube_step": (_signature(_VECTOR, _MATRIX, *[_VECTOR] * 8, _MATRIX, _VECTOR, _VECTOR),),
     "tube_step_packed": (_PORT_STEP,),
     "exact_tube_step_packed": (_PORT_STEP,),
     "tube_advance": (_signature(_VECTOR, _MATRIX, *[_VECTOR] * 8, *_ADVANCE_TAIL),),

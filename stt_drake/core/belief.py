@@ -232,6 +232,11 @@ class ObstacleBelief:
         covariances are read; None: not made from a port."""
         return None
 
+    @property
+    def all_active(self) -> bool:
+        """Whether every port slot holds an obstacle: here always."""
+        return True
+
     def in_slots(self, values: np.ndarray, fill: float) -> np.ndarray:
         """Per-obstacle `values` over the port slots this belief was made from, `fill` in an
         inactive slot; here obstacle j is slot j, so `values` itself."""
@@ -363,6 +368,13 @@ class PortBelief(ObstacleBelief):
     @property
     def port_arrays(self) -> tuple[np.ndarray, np.ndarray] | None:
         return self.vector, self.slot_task.table()
+
+    @property
+    def all_active(self) -> bool:
+        """Whether every slot is active, read off the vector's flags (nothing unpacked: a
+        fixed-rate update asks this of every belief it reads)."""
+        size = record_size(self._dimension)
+        return bool(np.all(self.vector[size - 1 :: size] > 0.5))
 
     @cached_property
     def slots(self) -> GaussianBelief:

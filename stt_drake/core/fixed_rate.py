@@ -225,7 +225,7 @@ def advance(
     """
     center = np.array(center, dtype=float)
     port = belief.packed  # an isotropic belief from a port: the kernel reads the vector
-    if port is not None and belief.slots.active.all():
+    if port is not None and belief.all_active:
         kernel = backend.compiled("tube_advance_packed", belief.dimension)
         if kernel is not None:
             shape = (len(port[1]), belief.dimension)

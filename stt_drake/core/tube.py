@@ -61,7 +61,7 @@ from functools import cached_property
 import numpy as np
 
 from stt_drake.core import backend
-from stt_drake.core.belief import ObstacleBelief
+from stt_drake.core.belief import ObstacleBelief, ObstacleTask, PortBelief
 from stt_drake.core.fixed_rate import BeliefRateBounds, FixedRateUpdate
 from stt_drake.core.fixed_rate import advance as fixed_rate_advance
 from stt_drake.core.probability import PRUNE_HEADROOM_NU
@@ -116,8 +116,9 @@ def default_nu(obstacle_count: int, r_min: float) -> float:
 #: accuracy is ~1e-13; the isotropic law keeps PRUNE_HEADROOM_NU = 40.
 ANISOTROPIC_PRUNE_HEADROOM_NU = 25.0
 
-#: The (reach, spread) argument of the compiled kernel without period inflation.
-_NO_INFLATION = np.empty(0)
+#: The compiled kernel's empty argument: no period inflation (reach, spread), no activity
+#: flags (every row of the obstacles' arrays is an obstacle).
+_EMPTY = np.empty(0)
 
 
 def _kernel_mode(full_covariance: bool, mode: str) -> str:
@@ -304,24 +305,62 @@ class TubeLaw:
         """
         mode = ("pruned" if prune else "exact") if quantiles else "rate"
         center = np.asarray(center, dtype=float)
+        if not isinstance(belief, PortBelief):  # one obstacle per slot
+            return self._evaluate_obstacles(center, belief, mode, circulation, inflation)
         if inflation is None:  # else only isotropic beliefs (checked in _evaluate_obstacles)
-            port = belief.port_arrays
-            if port is not None:
-                count, full = len(port[1]), belief.packed is None
-                name = "exact_tube_step_packed" if full else "tube_step_packed"
-                call = self._kernel_call(name, belief.dimension, count, _kernel_mode(full, mode))
-                if call is not None:
-                    kernel, k2, k3, constants, axes = call
-                    if circulation is not None:
-                        axes = kernel_extras((count, belief.dimension), circulation, None)[2]
-                    return evaluation_of(
-                        kernel(center, *port, k2, k3, axes, constants), len(center)
-                    )
-        obstacles = belief.obstacles()
+            evaluation = self._port_evaluation(
+                center, belief.vector, belief.slot_task, belief.full_covariance, circulation, mode
+            )
+            if evaluation is not None:
+                return evaluation
         circulation = belief.of_obstacles(circulation)
-        return self._evaluate_obstacles(center, obstacles, mode, circulation, inflation).in_slots(
-            belief
+        evaluation = self._evaluate_obstacles(
+            center, belief.obstacles(), mode, circulation, inflation
         )
+        return evaluation.in_slots(belief)
+
+    def evaluate_port(
+        self,
+        center: np.ndarray,
+        vector: np.ndarray,
+        task: ObstacleTask,
+        full_covariance: bool,
+        circulation: np.ndarray | None = None,
+    ) -> TubeEvaluation:
+        """:meth:`evaluate` of ``ObstacleBelief.from_port(vector, n, task, full_covariance)``
+        at `center` (n,), float64: a system's hot path. Where the compiled kernel runs it
+        reads the port `vector` itself and no belief is made, so `vector` must have the
+        port's length for ``task.count`` slots (a Drake input port of the declared size
+        has; a system checks `task` once when it is made)."""
+        evaluation = self._port_evaluation(
+            center, vector, task, full_covariance, circulation, "pruned"
+        )
+        if evaluation is None:
+            belief = ObstacleBelief.from_port(vector, len(center), task, full_covariance)
+            return self.evaluate(center, belief, circulation=circulation)
+        return evaluation
+
+    def _port_evaluation(
+        self,
+        center: np.ndarray,
+        vector: np.ndarray,
+        task: ObstacleTask,
+        full: bool,
+        circulation: np.ndarray | None,
+        mode: str,
+    ) -> TubeEvaluation | None:
+        """One call of the compiled :func:`stt_drake.core._tube.tube_step_packed` (σ_j) or
+        :func:`stt_drake.core._tube.exact_tube_step_packed` (Σ_j) on a port `vector`; None
+        where the numpy reference runs."""
+        n, count = len(center), task.count
+        name = "exact_tube_step_packed" if full else "tube_step_packed"
+        call = self._kernel_call(name, n, count, _kernel_mode(full, mode))
+        if call is None:
+            return None
+        kernel, k2, k3, constants, axes = call
+        if circulation is not None:
+            axes = kernel_extras((count, n), circulation, None)[2]
+        return evaluation_of(kernel(center, vector, task.table(), k2, k3, axes, constants), n)
 
     def switching_gains(self, center: np.ndarray, belief: ObstacleBelief) -> np.ndarray:
         """θ_j at `center` (no quantile is computed)."""
@@ -353,11 +392,14 @@ class TubeLaw:
         if circulation is not None:
             axes = kernel_extras((count, n), circulation, None)[2]
         if not full:
-            reach = spread = _NO_INFLATION
+            reach = spread = _EMPTY
             if inflation is not None:
                 reach, spread, _axes = kernel_extras((count, n), None, inflation)
-            arguments = (*belief.arrays(), k2, k3, reach, spread, axes, constants)
-            return evaluation_of(kernel(center, *arguments), n)
+            # The fields themselves, not belief.arrays(): one Python call less per evaluation.
+            arguments = (belief.mean, belief.sigma, belief.radius, belief.epsilon, belief.p_d)
+            return evaluation_of(
+                kernel(center, *arguments, k2, k3, reach, spread, axes, constants, _EMPTY), n
+            )
         return evaluation_of(
             kernel(
                 center,

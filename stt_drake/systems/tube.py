@@ -225,8 +225,8 @@ class SpatiotemporalTube(LeafSystem):
         value.set_value(law)
 
     def _calc_evaluation(self, context: Context, value: AbstractValue) -> None:
-        # The hot path: the port vector is the memo key, and the belief is made from it
-        # here (not through the `belief` cache entry: one Python call less per evaluation).
+        # The hot path: the port vector is the memo key, and the law reads it as it is (no
+        # belief is made: the `belief` cache entry is for the readers that need one).
         center = self.center(context)
         vector, circulation = self._belief_port.Eval(context), self.circulation(context)
         target = None if self._target_law is None else self._target_port.Eval(context)
@@ -234,11 +234,10 @@ class SpatiotemporalTube(LeafSystem):
         if result is not None:  # the same inputs as the last evaluation: its result
             value.set_value(result)
             return
-        belief = ObstacleBelief.from_port(
-            vector, self._dimension, self.task, self._full_covariance
-        )
         law = self.law_in(context)
-        evaluation = law.evaluate(center, belief, circulation=circulation)
+        evaluation = law.evaluate_port(
+            center, vector, self.task, self._full_covariance, circulation
+        )
         tube = np.empty(self._dimension + 1)  # the `tube` port value, [c, r]
         tube[:-1] = center
         tube[-1] = evaluation.radius
@@ -249,11 +248,10 @@ class SpatiotemporalTube(LeafSystem):
                 f"ċ = {evaluation.center_rate}, r = {evaluation.radius} (a recovery needs "
                 f"a finite max_center_speed, v_c = {law.max_center_speed})"
             )
-        value.set_value(self._last_evaluation.store(key, (evaluation, tube, belief)))
+        value.set_value(self._last_evaluation.store(key, (evaluation, tube)))
 
-    def evaluated(self, context: Context) -> tuple[TubeEvaluation, np.ndarray, PortBelief]:
-        """The cached (law evaluation, [c, r] with the law's exact radius, the belief it
-        read) in `context`."""
+    def evaluated(self, context: Context) -> tuple[TubeEvaluation, np.ndarray]:
+        """The cached (law evaluation, [c, r] with the law's exact radius) in `context`."""
         return self._evaluation.Eval(context)
 
     def evaluation(self, context: Context) -> TubeEvaluation:
@@ -331,9 +329,8 @@ class ContinuousCentre:
 
     def _carry_circulation(self, context: Context, discrete_state: DiscreteValues) -> EventStatus:
         tube = self._tube
-        evaluation, _, belief = tube.evaluated(context)
-        center, theta = self.center(context), evaluation.theta
-        if tube.carry(context, discrete_state, center, belief.slots.mean, theta):
+        center, theta = self.center(context), tube.evaluation(context).theta
+        if tube.carry(context, discrete_state, center, tube.belief(context).slots.mean, theta):
             return EventStatus.Succeeded()
         return EventStatus.DidNothing()  # nothing active, nothing held: no state change
 
@@ -409,13 +406,10 @@ class FixedRateCentre:
         """[c(t), r(t)]: linear from the values at the last update to those at the end of
         its period (r is NaN before the first update). Scalar Python arithmetic on the
         n + 1 values: the output port's hot path, cheaper than numpy's per-call overhead."""
-        layout = self._layout
-        size = layout.dimension + 1
-        values = context.get_discrete_state(self._state_index).value()[: layout.time + 1]
-        values = values.tolist()
-        fraction = (context.get_time() - values[layout.time]) / self.update_period
-        fraction = min(max(fraction, 0.0), 1.0)
-        start, end = values[:size], values[size : layout.time]
+        size, time = self._layout.dimension + 1, self._layout.time  # [c, r] twice, then t_k
+        values = context.get_discrete_state(self._state_index).value()[: time + 1].tolist()
+        fraction = min(max((context.get_time() - values[time]) / self.update_period, 0.0), 1.0)
+        start, end = values[:size], values[size:time]
         return [a + fraction * (b - a) for a, b in zip(start, end, strict=True)]
 
     def center(self, context: Context) -> np.ndarray:
@@ -443,12 +437,11 @@ class FixedRateCentre:
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
         tube = self._tube
         belief = tube.belief(context)
-        slots = belief.slots
-        if not slots.active.all():
+        if not belief.all_active:
             raise RuntimeError(
-                f"obstacle_belief: slots {np.flatnonzero(~slots.active).tolist()} inactive at "
-                f"t = {context.get_time():.6g} s; the fixed-rate tube's rate bounds need every "
-                "slot active (run a tracked belief in continuous time)"
+                f"obstacle_belief: slots {np.flatnonzero(~belief.slots.active).tolist()} "
+                f"inactive at t = {context.get_time():.6g} s; the fixed-rate tube's rate "
+                "bounds need every slot active (run a tracked belief in continuous time)"
             )
         layout = self._layout
         # `discrete_state` holds the current values: update them in place.
@@ -471,4 +464,4 @@ class FixedRateCentre:
         state[layout.time] = context.get_time()
         state[layout.recovery] = ~update.certified
         if tube.circulates:
-            tube.carry(context, discrete_state, update.center, slots.mean, update.theta)
+            tube.carry(context, discrete_state, update.center, belief.slots.mean, update.theta)

@@ -81,3 +81,40 @@ def test_soft_min_radius_matches_logsumexp_with_skipped_terms(seed):
     assert radius == pytest.approx(expected, rel=1e-14, abs=1e-15)
     assert radius <= min(values.min(), r_max)
     assert np.isnan(_tube.soft_min_radius(np.array([1.0, np.nan]), r_max, nu))
+
+
+@pytest.mark.parametrize("full_covariance", [False, True])
+@pytest.mark.parametrize("dimension", [2, 3])
+def test_the_port_entry_reads_the_port_as_the_belief_made_from_it(dimension, full_covariance):
+    """evaluate_port (a system's hot path: the kernel reads the port vector in place, slot
+    by slot) equals evaluate on the belief made from that port, with some slots inactive
+    (their means on the centre: they would dominate if read), and the law on the active
+    slots' own arrays (σ_j there from an eigen-decomposition, here in closed form: a few
+    ulps), compiled and on the numpy path; an inactive slot reads q = 1, d̂ = +∞, θ = 0."""
+    from stt_drake.core.belief import GaussianBelief, ObstacleBelief
+
+    law, center, belief = obstacle_field(12, dimension, worst_case=True, seed=3)
+    gaussian = belief.gaussian()
+    active = np.ones(12, dtype=bool)
+    active[[1, 4, 10]] = False
+    mean = gaussian.mean.copy()
+    mean[~active] = center
+    vector = GaussianBelief(mean, gaussian.covariance, active).to_vector()
+    port = ObstacleBelief.from_port(vector, dimension, belief.task, full_covariance)
+    subset = ObstacleBelief.of(port.slots, belief.task, full_covariance)
+    compiled = law.evaluate_port(center, vector, belief.task, full_covariance)
+    _same(law.evaluate(center, port), compiled)  # the one port path
+    alone = law.evaluate(center, subset)
+    np.testing.assert_allclose(compiled.center_rate, alone.center_rate, rtol=1e-12)
+    for field in ("avoid_probability", "quantile_distance", "theta"):
+        np.testing.assert_allclose(
+            getattr(compiled, field)[active], getattr(alone, field), rtol=1e-12
+        )
+    assert compiled.radius == pytest.approx(alone.radius, rel=1e-14)
+    with backend.pure_numpy():
+        reference = law.evaluate_port(center, vector, belief.task, full_covariance)
+    _same(compiled, reference, rtol=1e-8)
+    assert np.all(compiled.avoid_probability[~active] == 1.0)
+    assert np.all(compiled.quantile_distance[~active] == np.inf)
+    assert np.all(compiled.theta[~active] == 0.0)
+    assert np.all(compiled.theta[active] > 0.0)  # the worst field: every active slot acts

@@ -415,6 +415,30 @@ def test_tube_fixed_rate_five_updates():
     )
 
 
+def test_fixed_rate_tube_refuses_an_inactive_slot_by_name():
+    """The fixed-rate rate bounds are per obstacle: an update that reads an inactive slot
+    stops the run and names the slot and the time (the flags are read off the port
+    vector; every active slot passes)."""
+    law = make_law()
+    start = np.array([0.4, -0.1])
+    tube = SpatiotemporalTube(
+        law, start, TUBE_BELIEF.task, update_period=0.01, rate_bounds=BeliefRateBounds.still(2)
+    )
+    gaussian = TUBE_BELIEF.gaussian()
+    for active, inactive in (([True, True], None), ([True, False], 1), ([False, True], 0)):
+        vector = GaussianBelief(gaussian.mean, gaussian.covariance, np.array(active)).to_vector()
+        context = tube.CreateDefaultContext()
+        tube.GetInputPort("obstacle_belief").FixValue(context, vector)
+        tube.set_center(context, start)
+        assert tube.belief(context).all_active == (inactive is None)
+        simulator = Simulator(tube, context)
+        if inactive is None:
+            simulator.Initialize()
+            continue
+        with pytest.raises(RuntimeError, match=rf"slots \[{inactive}\] inactive at t = 0 s"):
+            simulator.Initialize()
+
+
 def test_fixed_rate_state_slots_are_named_by_the_period_layout():
     """The fixed-rate tube's discrete state, read by slot name (PeriodLayout): after the
     update at t = 0 it holds c at the update (the start), c at the end of the period (the
@@ -545,9 +569,9 @@ class RecordingLaw(TubeLaw):
 
     gaps: list[float] = field(default_factory=list)
 
-    def evaluate(self, center, belief, *args, **kwargs):
+    def evaluate_port(self, center, *args, **kwargs):  # the tube system's entry
         self.gaps.append(thin_q_gap(center))
-        return super().evaluate(center, belief, *args, **kwargs)
+        return super().evaluate_port(center, *args, **kwargs)
 
 
 def test_thin_layer_trap_is_real_for_fixed_step_explicit_integration():
@@ -755,6 +779,38 @@ def test_monitor_follows_input_changes():
     monitor.GetInputPort("tube").FixValue(context, [*MONITOR_CENTER, 0.5])
     assert port.Eval(context)[0] == pytest.approx(0.5 - 0.1)
     assert port.Eval(context)[MARGIN["radius_positive"]] == pytest.approx(0.5)
+
+
+def test_monitor_with_covariances_reads_its_port_and_names_a_broken_one():
+    """With full covariances the monitor hands its port vector straight to the compiled
+    margins: the same margins and probabilities as evaluate_tube_invariants of the belief
+    it reads (one obstacle near enough for a contour integral), and a Σ_j that breaks a
+    rule is still named by its obstacle (the belief's path)."""
+    from stt_drake.core.invariants import evaluate_tube_invariants
+
+    y, tube = np.array([1.1, 2.05]), np.array([*MONITOR_CENTER, MONITOR_RADIUS])
+    mean = np.array([[1.2, 2.6], [40.0, -30.0]])
+    covariance = np.array([[[0.02, 0.005], [0.005, 0.01]], [[0.04, 0.0], [0.0, 0.09]]])
+    monitor = InvariantMonitor(2, FAR_BELIEF.task, r_min=0.1, full_covariance=True)
+    context = monitor.CreateDefaultContext()
+    monitor.GetInputPort("tube").FixValue(context, tube)
+    monitor.GetInputPort("output").FixValue(context, y)
+    belief_port = monitor.GetInputPort("obstacle_belief")
+    vector = GaussianBelief(mean, covariance, np.ones(2, dtype=bool)).to_vector()
+    belief_port.FixValue(context, vector)
+    belief = ObstacleBelief.from_port(vector, 2, FAR_BELIEF.task, full_covariance=True)
+    expected = evaluate_tube_invariants(y, tube, belief, 0.1)
+    np.testing.assert_array_equal(monitor.GetOutputPort("margins").Eval(context), expected.margins)
+    for name in ("output_avoid_probability", "tube_avoid_probability"):
+        values = monitor.GetOutputPort(name).Eval(context)
+        np.testing.assert_array_equal(values, getattr(expected, name))
+        assert 0.0 < values[0] < 1.0 and values[1] == 1.0
+    covariance[1] = -covariance[1]
+    belief_port.FixValue(
+        context, GaussianBelief(mean, covariance, np.ones(2, dtype=bool)).to_vector()
+    )
+    with pytest.raises(ValueError, match=r"^obstacle 1: covariance must be positive definite"):
+        monitor.GetOutputPort("margins").Eval(context)
 
 
 def monitor_diagram(y0: np.ndarray, velocity: np.ndarray):
