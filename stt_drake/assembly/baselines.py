@@ -27,9 +27,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import VectorLogSink
 
-from stt_drake.assembly.diagram import PLANT_BUILDERS, add_loggers
+from stt_drake.assembly.diagram import PLANT_BUILDERS
+from stt_drake.assembly.loggers import LoggedSignal, add_loggers
 from stt_drake.config import OmniRobot as OmniRobotConfig
 from stt_drake.config import Quadrotor as QuadrotorConfig
 from stt_drake.config import Scenario
@@ -95,7 +95,7 @@ class BaselineDiagram:
     belief_source: ObstacleBeliefSource
     plant: LeafSystem
     task: ObstacleTask
-    loggers: dict[str, VectorLogSink] = field(default_factory=dict)
+    loggers: dict[str, LoggedSignal] = field(default_factory=dict)
 
 
 def nominal_plant(scenario: Scenario) -> NominalPlant:

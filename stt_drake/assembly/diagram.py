@@ -12,11 +12,12 @@ import numpy as np
 from pydrake.geometry import Meshcat, MeshcatVisualizer, MeshcatVisualizerParams, SceneGraph
 from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, MultibodyPlant
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, OutputPort
-from pydrake.systems.primitives import LogVectorOutput, MatrixGain, Sine, VectorLogSink
+from pydrake.systems.primitives import MatrixGain, Sine
 
 from stt_drake.assembly.feasibility import rate_bounds
 from stt_drake.assembly.guide import add_guide
 from stt_drake.assembly.laws import make_arm_law, make_funnel_controller, make_tube_law
+from stt_drake.assembly.loggers import LoggedSignal, add_loggers
 from stt_drake.assembly.perception import add_perception
 from stt_drake.assembly.stt import AddStt
 from stt_drake.config import FrankaArm as FrankaArmConfig
@@ -87,7 +88,7 @@ class SttDiagram:
     controller: LeafSystem
     monitor: InvariantMonitor
     plant: LeafSystem
-    loggers: dict[str, VectorLogSink] = field(default_factory=dict)
+    loggers: dict[str, LoggedSignal] = field(default_factory=dict)
     sequencer: LeafSystem | None = None
     extra_logs: tuple[str, ...] = ()
     log_constants: dict[str, np.ndarray] = field(default_factory=dict)
@@ -336,18 +337,6 @@ PLANT_BUILDERS: dict[type, Callable[[DiagramBuilder, Scenario], PlantHandles]] =
     QuadrotorConfig: add_quadrotor,
     FrankaArmConfig: add_franka,
 }
-
-
-def add_loggers(
-    builder: DiagramBuilder, ports: Mapping[str, OutputPort], period: float
-) -> dict[str, VectorLogSink]:
-    """A `LogVectorOutput` named "<name>_logger" on each of `ports`, sampling every
-    `period` seconds."""
-    loggers = {}
-    for name, port in ports.items():
-        loggers[name] = LogVectorOutput(port, builder, period)
-        loggers[name].set_name(f"{name}_logger")
-    return loggers
 
 
 def add_live_view(

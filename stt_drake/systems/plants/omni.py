@@ -66,15 +66,16 @@ class OmniKinematics(LeafSystem):
     def DoCalcTimeDerivatives(  # noqa: N802 (Drake API)
         self, context: Context, derivatives: ContinuousState
     ) -> None:
-        # Scalar Python arithmetic on 3-vectors: cheaper than numpy's per-call overhead.
-        heading = context.get_continuous_state_vector().GetAtIndex(2)
+        # Scalar Python arithmetic on 3-vectors, and as few pybind calls as can be: cheaper
+        # than numpy's per-call overhead.
+        heading = context.get_continuous_state_vector()[2]
         w0, w1, w2 = self._wheel_port.Eval(context).tolist()
-        v_x, v_y, yaw_rate = (r[0] * w0 + r[1] * w1 + r[2] * w2 for r in self._twist_rows)
+        (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = self._twist_rows
+        v_x, v_y = a0 * w0 + a1 * w1 + a2 * w2, b0 * w0 + b1 * w1 + b2 * w2
+        yaw_rate = c0 * w0 + c1 * w1 + c2 * w2
         d_x, d_y = self._disturbance_port.Eval(context).tolist()
         c, s = math.cos(heading), math.sin(heading)  # world velocity = R(ψ) body velocity
-        derivatives.get_mutable_vector().SetFromVector(
-            [c * v_x - s * v_y + d_x, s * v_x + c * v_y + d_y, yaw_rate]
-        )
+        derivatives.SetFromVector([c * v_x - s * v_y + d_x, s * v_x + c * v_y + d_y, yaw_rate])
 
 
 class OmniRobot(Diagram):
@@ -131,12 +132,19 @@ class OmniDriveInterface(LeafSystem):
         self.DeclareVectorOutputPort("wheel_speeds", 3, self._calc_wheel_speeds)
 
     def _calc_wheel_speeds(self, context: Context, output: BasicVector) -> None:
-        # Scalar Python arithmetic on 3-vectors: cheaper than numpy's per-call overhead.
+        # Scalar Python arithmetic on Python floats: cheaper than numpy's per-call overhead.
         u_x, u_y = self._command_port.Eval(context).tolist()
-        heading = self._pose_port.Eval(context)[2]
+        heading = self._pose_port.Eval(context).tolist()[2]
         difference = heading - self._heading_reference
         heading_error = math.atan2(math.sin(difference), math.cos(difference))  # to (−π, π]
         c, s = math.cos(heading), math.sin(heading)  # body velocity = R(ψ)ᵀ command
         v_x, v_y = c * u_x + s * u_y, -s * u_x + c * u_y
         yaw_rate = -self._heading_gain * heading_error
-        output.SetFromVector([r[0] * v_x + r[1] * v_y + r[2] * yaw_rate for r in self._wheel_rows])
+        (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = self._wheel_rows
+        output.SetFromVector(
+            [
+                a0 * v_x + a1 * v_y + a2 * yaw_rate,
+                b0 * v_x + b1 * v_y + b2 * yaw_rate,
+                c0 * v_x + c1 * v_y + c2 * yaw_rate,
+            ]
+        )
