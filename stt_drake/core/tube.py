@@ -358,8 +358,8 @@ class TubeLaw:
         if call is None:
             return None
         kernel, k2, k3, constants, axes = call
-        if circulation is not None:
-            axes = kernel_extras((count, n), circulation, None)[2]
+        if circulation is not None:  # (slots, 3) rows; only the axes (kernel_extras: 3× this)
+            axes = np.ascontiguousarray(circulation, dtype=float).reshape(count, n)
         return evaluation_of(kernel(center, vector, task.table(), k2, k3, axes, constants), n)
 
     def switching_gains(self, center: np.ndarray, belief: ObstacleBelief) -> np.ndarray:

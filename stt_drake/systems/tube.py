@@ -31,7 +31,13 @@ from pydrake.systems.framework import (
     ValueProducer,
 )
 
-from stt_drake.core.belief import ObstacleBelief, ObstacleTask, PortBelief, belief_size
+from stt_drake.core.belief import (
+    ObstacleBelief,
+    ObstacleTask,
+    PortBelief,
+    belief_size,
+    record_size,
+)
 from stt_drake.core.circulation import carry_circulation
 from stt_drake.core.fixed_rate import BeliefRateBounds
 from stt_drake.core.rules import (
@@ -271,6 +277,12 @@ class SpatiotemporalTube(LeafSystem):
     ) -> None:
         self._mode.derivatives(context, derivatives)
 
+    def slot_means(self, context: Context) -> np.ndarray:
+        """μ_j of every slot (slots, n) of the `obstacle_belief` input, read off the port
+        vector (no belief is unpacked: the circulation carry reads them at every step)."""
+        table = self._belief_port.Eval(context).reshape(-1, record_size(self._dimension))
+        return np.ascontiguousarray(table[:, : self._dimension])
+
     def carry(
         self,
         context: Context,
@@ -330,7 +342,7 @@ class ContinuousCentre:
     def _carry_circulation(self, context: Context, discrete_state: DiscreteValues) -> EventStatus:
         tube = self._tube
         center, theta = self.center(context), tube.evaluation(context).theta
-        if tube.carry(context, discrete_state, center, tube.belief(context).slots.mean, theta):
+        if tube.carry(context, discrete_state, center, tube.slot_means(context), theta):
             return EventStatus.Succeeded()
         return EventStatus.DidNothing()  # nothing active, nothing held: no state change
 
@@ -464,4 +476,5 @@ class FixedRateCentre:
         state[layout.time] = context.get_time()
         state[layout.recovery] = ~update.certified
         if tube.circulates:
-            tube.carry(context, discrete_state, update.center, belief.slots.mean, update.theta)
+            means = tube.slot_means(context)
+            tube.carry(context, discrete_state, update.center, means, update.theta)
