@@ -60,29 +60,30 @@ def anisotropic_invariants(
     row NaN) where Σ_j breaks a rule of
     :func:`stt_drake.core.anisotropic.eigen_decomposition` (finite, symmetric, positive
     definite, eigenvalue ratio ≤ `max_condition`)."""
-    count = mean.shape[0]
+    count, n = mean.shape
     q = np.full((count, 3), np.nan)
     valid = np.zeros(count, dtype=np.bool_)
     radii = np.empty(3)
-    half = np.empty(covariance.shape[1:])
+    half = np.empty((n, n))
     for j in range(count):
         if not _half_sum(covariance[j], half, symmetry_rtol):
             continue
         variances, axes = np.linalg.eigh(half)
         if not (variances[0] > 0.0 and variances[-1] <= max_condition * variances[0]):
             continue
-        at_center = (center - mean[j]) @ axes
-        at_output = (output - mean[j]) @ axes
         radii[0] = obstacle_radius[j] + r_min
         radii[1] = obstacle_radius[j] + max(radius, 0.0)
         radii[2] = obstacle_radius[j]
         negligible = HIT_NEGLIGIBLE_SIGMAS * math.sqrt(variances[-1])
         for k in range(3):
-            point = at_output if k == 2 else at_center
-            if math.sqrt(np.sum(point * point)) > radii[k] + negligible:
+            point = output if k == 2 else center
+            distance = 0.0  # ‖point − μ_j‖; rotated into Σ_j's frame only where integrated
+            for i in range(n):
+                distance += (point[i] - mean[j, i]) ** 2
+            if math.sqrt(distance) > radii[k] + negligible:
                 q[j, k] = 1.0  # a hit below half an ulp of 1 (HIT_NEGLIGIBLE_SIGMAS)
             else:
-                q[j, k] = ball_probabilities(variances, point, radii[k])[1]
+                q[j, k] = ball_probabilities(variances, (point - mean[j]) @ axes, radii[k])[1]
         valid[j] = True
     return q, valid
 

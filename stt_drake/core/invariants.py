@@ -71,30 +71,20 @@ def evaluate_tube_invariants(
     (:meth:`ObstacleBelief.in_slots`; an inactive slot reads 1 and takes no part in the
     margins).
 
-    With full covariances each Σ_j exactly: one call of the compiled
-    :func:`stt_drake.core._invariants.anisotropic_invariants_packed` for a belief from a
-    port (the monitor's hot path), else :func:`_anisotropic_probabilities` (which also names
-    a Σ_j that breaks a rule). Otherwise one call of the compiled
-    :func:`stt_drake.core._kernels.invariant_margins_packed` (a belief from a port) or
-    :func:`stt_drake.core._kernels.invariant_margins` for n ≤ 3 (unless the numpy path is
-    selected, see :mod:`stt_drake.core.backend`), else numpy.
+    For a belief from a port, one compiled call (:func:`port_invariants`, the monitor's hot
+    path). Otherwise, with full covariances, each Σ_j exactly by
+    :func:`_anisotropic_probabilities` (which also names a Σ_j that breaks a rule); else
+    one call of the compiled :func:`stt_drake.core._kernels.invariant_margins` for n ≤ 3
+    (unless the numpy path is selected, see :mod:`stt_drake.core.backend`), else numpy.
     """
     output = np.asarray(output, dtype=float)
     tube = np.ascontiguousarray(tube, dtype=float)
     dimension = output.shape[0]
     port = belief.port_arrays
-    if port is not None and belief.packed is not None:  # σ_j read from the port vector
-        kernel = backend.compiled("invariant_margins_packed", dimension)
-        if kernel is not None:
-            return InvariantSample._make(kernel(output, tube, *port, r_min))
-    if port is not None and belief.packed is None:  # each Σ_j exactly, from the port vector
-        kernel = backend.compiled("anisotropic_invariants_packed", dimension)
-        if kernel is not None:
-            *sample, valid = kernel(
-                output, tube, *port, r_min, anisotropic.SYMMETRY_RTOL, anisotropic.MAX_CONDITION
-            )
-            if valid:  # else the arrays' path below names the Σ_j that breaks a rule
-                return InvariantSample._make(sample)
+    if port is not None:
+        sample = port_invariants(output, tube, *port, belief.packed is None, r_min)
+        if sample is not None:  # else the arrays' path below (it names a Σ_j that breaks a rule)
+            return sample
     center, radius = tube[:-1], float(tube[-1])
     obstacles = belief.obstacles()
     if obstacles.covariance is not None:
@@ -127,6 +117,33 @@ def evaluate_tube_invariants(
                 output, center, radius, obstacles.epsilon, center_q, tube_q, output_q
             )
     return InvariantSample(margins, belief.in_slots(output_q, 1.0), belief.in_slots(tube_q, 1.0))
+
+
+def port_invariants(
+    output: np.ndarray,
+    tube: np.ndarray,
+    vector: np.ndarray,
+    task: np.ndarray,
+    full_covariance: bool,
+    r_min: float,
+) -> InvariantSample | None:
+    """:func:`evaluate_tube_invariants` of the belief a port `vector` holds (`task`: the rows
+    [r_o, ε, p_d] per slot, :meth:`ObstacleTask.table`) in one compiled call, without making
+    the belief: :func:`stt_drake.core._kernels.invariant_margins_packed` (σ_j) or, with
+    `full_covariance`, :func:`stt_drake.core._invariants.anisotropic_invariants_packed`
+    (each Σ_j). `output` and `tube` are float arrays. None where the belief's path must run
+    instead: the numpy path is selected, the dimension is not compiled, or some Σ_j breaks
+    a rule (that path names it)."""
+    name = "anisotropic_invariants_packed" if full_covariance else "invariant_margins_packed"
+    kernel = backend.compiled(name, output.shape[0])
+    if kernel is None:
+        return None
+    if not full_covariance:
+        return InvariantSample._make(kernel(output, tube, vector, task, r_min))
+    *sample, valid = kernel(
+        output, tube, vector, task, r_min, anisotropic.SYMMETRY_RTOL, anisotropic.MAX_CONDITION
+    )
+    return InvariantSample._make(sample) if valid else None
 
 
 def _margins(

@@ -24,6 +24,7 @@ from stt_drake.core.invariants import (
     RecoveryTracker,
     center_avoid_probability,
     evaluate_tube_invariants,
+    port_invariants,
 )
 
 #: Default step-rate limit L (integrator steps per simulated second) of the watchdog, used
@@ -140,6 +141,7 @@ class InvariantMonitor(LeafSystem):
         self._dimension = dimension
         self._r_min = r_min
         self._task = task
+        self._task_table = task.table()
         self._full_covariance = full_covariance
         count = task.count
         self._tube_port = self.DeclareVectorInputPort("tube", dimension + 1)
@@ -183,12 +185,19 @@ class InvariantMonitor(LeafSystem):
         )
 
     def _calc_sample(self, context: Context, value: AbstractValue) -> None:
-        sample = evaluate_tube_invariants(
-            self._output_port.Eval(context),
-            self._tube_port.Eval(context),
-            self.belief(context),
-            self._r_min,
+        output = self._output_port.Eval(context)
+        tube = self._tube_port.Eval(context)
+        vector = self._belief_port.Eval(context)
+        # The port vector straight to the kernel: no belief made at each step (the port's
+        # size is fixed, so its checks cannot fail here).
+        sample = port_invariants(
+            output, tube, vector, self._task_table, self._full_covariance, self._r_min
         )
+        if sample is None:  # numpy path, or a Σ_j that breaks a rule (named there)
+            belief = ObstacleBelief.from_port(
+                vector, self._dimension, self._task, self._full_covariance
+            )
+            sample = evaluate_tube_invariants(output, tube, belief, self._r_min)
         value.set_value(sample)
 
     def _calc_output_avoid(self, context: Context, output: BasicVector) -> None:

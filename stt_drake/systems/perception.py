@@ -304,13 +304,11 @@ class ObstacleTracker(LeafSystem):
         """The published belief at the context time, as the `obstacle_belief` port vector
         (blended for `blend_time` after an update)."""
         t = context.get_time()
-        elapsed = t - context.get_discrete_state(self._update_time).value()[0]
+        state = context.get_discrete_state()  # once: each group lookup from the context costs
+        elapsed = t - state.get_vector(self._update_time)[0]  # a Python float, not numpy's
         weight = elapsed / self._blend_time if elapsed < self._blend_time else 1.0
         return self._tracker.belief_vector(
-            context.get_discrete_state(self._tracks).value(),
-            context.get_discrete_state(self._previous).value(),
-            t,
-            weight,
+            state.get_value(self._tracks), state.get_value(self._previous), t, weight
         )
 
     def _calc_belief(self, context: Context, output: BasicVector) -> None:
