@@ -295,9 +295,9 @@ class SpatiotemporalTube(LeafSystem):
         `center` with θ_j evaluated there; False (nothing written) when no obstacle is
         active and no axis is held."""
         axes = self.circulation(context)
-        active = theta > 0.0
-        if not active.any() and not axes.any():
+        if not theta.any() and not axes.any():  # θ_j ≥ 0: none active, none held
             return False
+        active = theta > 0.0
         target = self.law_in(context).target
         carried = carry_circulation(axes, center, mean, active, target - center)
         discrete_state.set_value(self._circulation_index, carried.ravel())
