@@ -369,12 +369,12 @@ class PortBelief(ObstacleBelief):
     def port_arrays(self) -> tuple[np.ndarray, np.ndarray] | None:
         return self.vector, self.slot_task.table()
 
-    @property
+    @cached_property
     def all_active(self) -> bool:
         """Whether every slot is active, read off the vector's flags (nothing unpacked: a
         fixed-rate update asks this of every belief it reads)."""
         size = record_size(self._dimension)
-        return bool(np.all(self.vector[size - 1 :: size] > 0.5))
+        return bool((self.vector[size - 1 :: size] > 0.5).all())
 
     @cached_property
     def slots(self) -> GaussianBelief:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -356,27 +357,27 @@ class PeriodLayout:
     dimension: int
     count: int
 
-    @property
+    @cached_property  # read at every update and output: computed once
     def start_center(self) -> slice:
         return slice(0, self.dimension)
 
-    @property
+    @cached_property
     def start_radius(self) -> int:
         return self.dimension
 
-    @property
+    @cached_property
     def end_center(self) -> slice:
         return slice(self.dimension + 1, 2 * self.dimension + 1)
 
-    @property
+    @cached_property
     def end_radius(self) -> int:
         return 2 * self.dimension + 1
 
-    @property
+    @cached_property
     def time(self) -> int:
         return 2 * self.dimension + 2
 
-    @property
+    @cached_property
     def recovery(self) -> slice:
         return slice(2 * self.dimension + 3, None)
 
