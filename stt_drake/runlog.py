@@ -83,7 +83,8 @@ class _Log(Protocol):  # pydrake.systems.primitives.VectorLog
 
 
 class LogSink(Protocol):
-    """What :meth:`RunLog.from_loggers` reads: a ``VectorLogSink`` (its log in a context)."""
+    """What :meth:`RunLog.from_loggers` reads: a ``VectorLogSink`` or a
+    :class:`~stt_drake.assembly.loggers.LoggedSignal` (its log in a context)."""
 
     def FindLog(self, context: Any) -> _Log: ...  # noqa: N802 - Drake's name
 
@@ -119,7 +120,8 @@ class RunLog(Mapping[str, np.ndarray]):
         """Read every logger of a simulated scenario into the run log.
 
         Args:
-            loggers: the diagram's ``VectorLogSink`` per logged signal: ``output``,
+            loggers: the diagram's logger per logged signal (a ``LoggedSignal``, or any
+                ``VectorLogSink``): ``output``,
                 ``tube`` ([c, r]), ``belief``, ``diagnostics`` ([q, d̂, θ] per obstacle),
                 ``recovery``, ``control``, ``margins``, ``output_avoid_probability``,
                 ``tube_avoid_probability`` and the names in `extra_logs`.
