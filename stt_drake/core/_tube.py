@@ -660,17 +660,18 @@ def _segment_quantile_lower_bound(
     sigma: float,
     radius: float,
     epsilon: float,
+    normal_quantile: float,
     reach: float,
     spread: float,
     prune_above: float,
 ) -> float:
-    """:func:`stt_drake.core.probability.segment_quantile_lower_bound` for obstacle j; where the
-    cheap bound σ·max(a − Φ⁻¹(ε), 0) already gives more than `prune_above`, that bound."""
+    """:func:`stt_drake.core.probability.segment_quantile_lower_bound` for obstacle j
+    (`normal_quantile` = Φ⁻¹(ε)); where the cheap bound σ·max(a − Φ⁻¹(ε), 0) already gives
+    more than `prune_above`, that bound."""
     n = start.shape[0]
     nearest, farthest = _segment_distances(start, end, mean, j)
     offset = max(nearest - reach, 0.0) / sigma
     penalty = spread * (farthest + reach)
-    normal_quantile = ndtri(epsilon)
     cheap = (sigma * max(offset - normal_quantile, 0.0) - penalty) / (1.0 + spread) - radius
     if cheap > prune_above:
         return cheap
@@ -772,6 +773,9 @@ def tube_advance(
         else:
             step *= 0.5
     reach1, spread1 = _inflation(sigma, mean_speed, sigma_rate, duration)
+    normal_quantile = np.empty(count)  # Φ⁻¹(ε_j), read by every quantile bound below
+    for j in range(count):
+        normal_quantile[j] = ndtri(epsilon[j])
     must_hold = np.empty(count, dtype=np.bool_)
     for j in range(count):
         start_q = period_avoid_probability(
@@ -779,7 +783,7 @@ def tube_advance(
         )
         must_hold[j] = start_q - epsilon[j] > 0.0
     at_start = _point_quantile_lower_bounds(
-        center, mean, sigma, radius, epsilon, reach1, spread1, prune_above
+        center, mean, sigma, radius, epsilon, normal_quantile, reach1, spread1, prune_above
     )
     smallest = math.inf  # min over the obstacles (none: inf, as the reference's initial)
     for j in range(count):
@@ -809,6 +813,7 @@ def tube_advance(
                 sigma[j],
                 radius[j],
                 epsilon[j],
+                normal_quantile[j],
                 reach1[j],
                 spread1[j],
                 prune_above,
@@ -830,7 +835,7 @@ def tube_advance(
         allowed[:] = at_start
     ahead = np.minimum(
         _point_quantile_lower_bounds(
-            position, mean, sigma, radius, epsilon, reach2, spread2, prune_above
+            position, mean, sigma, radius, epsilon, normal_quantile, reach2, spread2, prune_above
         ),
         allowed,
     )
@@ -891,6 +896,7 @@ def _point_quantile_lower_bounds(
     sigma: np.ndarray,
     radius: np.ndarray,
     epsilon: np.ndarray,
+    normal_quantile: np.ndarray,
     reach: np.ndarray,
     spread: np.ndarray,
     prune_above: float,
@@ -900,7 +906,17 @@ def _point_quantile_lower_bounds(
     bounds = np.empty(mean.shape[0])
     for j in range(mean.shape[0]):
         bounds[j] = _segment_quantile_lower_bound(
-            point, point, mean, j, sigma[j], radius[j], epsilon[j], reach[j], spread[j], prune_above
+            point,
+            point,
+            mean,
+            j,
+            sigma[j],
+            radius[j],
+            epsilon[j],
+            normal_quantile[j],
+            reach[j],
+            spread[j],
+            prune_above,
         )
     return bounds
 
