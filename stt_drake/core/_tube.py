@@ -31,7 +31,6 @@ from stt_drake.core._anisotropic_tube import (
 )
 from stt_drake.core._kernels import (
     _distance,
-    active_slots,
     chi_isf_given,
     chi_sf,
     largest_variance,
@@ -538,11 +537,19 @@ def tube_step_packed(
     slots (they never reach ċ or r); laid out as :func:`tube_step`'s result."""
     n = center.shape[0]
     table = belief.reshape((-1, n + n * n + 1))
-    sigma = np.zeros(table.shape[0])  # an inactive slot's is never read
+    sigma = _slot_sigmas(table, n)
+    return _port_pass(center, table, sigma, task, k2, k3, circulation, constants)
+
+
+@njit(**_JIT)
+def _slot_sigmas(table: np.ndarray, n: int) -> np.ndarray:
+    """σ_j = √λ_max(Σ_j) of every active slot of a port `table` (0 in an inactive one,
+    whose σ is never read)."""
+    sigma = np.zeros(table.shape[0])
     for j in range(table.shape[0]):
         if table[j, n + n * n] > 0.5:
             sigma[j] = math.sqrt(largest_variance(table, j, n))
-    return _port_pass(center, table, sigma, task, k2, k3, circulation, constants)
+    return sigma
 
 
 @njit(**_JIT)
@@ -712,7 +719,7 @@ def tube_advance(
         (c_{k+1}, certified (m,) booleans, accepted sub-steps, r at the start and at the
         end of the period, θ_j at c_{k+1} with the belief itself).
     """
-    count, n = mean.shape
+    count, n = mean.shape[0], center.shape[0]  # `mean` may be a port table (μ first)
     k1, r_min, r_max, nu, _zone, _prune, max_speed, target = tube_constants(constants)
     reach2, spread2 = _inflation(sigma, mean_speed, sigma_rate, 2.0 * duration)
     position = center.copy()
@@ -866,16 +873,17 @@ def tube_advance_packed(
     max_attempts: int,
 ) -> tuple[np.ndarray, np.ndarray, int, float, float, np.ndarray]:
     """:func:`tube_advance` on a belief port vector whose slots are all active and the task
-    rows ([r_o, ε, p_d] per slot), σ_j = √λ_max(Σ_j) read in closed form as
-    :func:`tube_step_packed` reads it: a fixed-rate update unpacks nothing."""
-    _slots, mean, sigma, rows = active_slots(belief, task, center.shape[0])
+    rows ([r_o, ε, p_d] per slot), read in place as :func:`tube_step_packed` reads them:
+    a fixed-rate update copies nothing."""
+    n = center.shape[0]
+    table = belief.reshape((-1, n + n * n + 1))
     return tube_advance(
         center,
-        mean,
-        sigma,
-        rows[:, 0],
-        rows[:, 1],
-        rows[:, 2],
+        table,
+        _slot_sigmas(table, n),
+        task[:, 0],
+        task[:, 1],
+        task[:, 2],
         k2,
         k3,
         mean_speed,
