@@ -278,7 +278,7 @@ class SpatiotemporalTube(LeafSystem):
     ) -> None:
         self._mode.derivatives(context, derivatives)
 
-    def slot_means(self, context: Context) -> np.ndarray:
+    def _slot_means(self, context: Context) -> np.ndarray:
         """μ_j of every slot (slots, n) of the `obstacle_belief` input, read off the port
         vector (no belief is unpacked: the circulation carry reads them at every step)."""
         table = self._belief_port.Eval(context).reshape(-1, record_size(self._dimension))
@@ -289,7 +289,6 @@ class SpatiotemporalTube(LeafSystem):
         context: Context,
         discrete_state: DiscreteValues,
         center: np.ndarray,
-        mean: np.ndarray,
         theta: np.ndarray,
     ) -> bool:
         """Write the circulation axes after this step (:func:`carry_circulation`) at
@@ -300,6 +299,7 @@ class SpatiotemporalTube(LeafSystem):
             return False
         active = theta > 0.0
         target = self.law_in(context).target
+        mean = self._slot_means(context)
         carried = carry_circulation(axes, center, mean, active, target - center)
         discrete_state.set_value(self._circulation_index, carried.ravel())
         return True
@@ -343,7 +343,7 @@ class ContinuousCentre:
     def _carry_circulation(self, context: Context, discrete_state: DiscreteValues) -> EventStatus:
         tube = self._tube
         center, theta = self.center(context), tube.evaluation(context).theta
-        if tube.carry(context, discrete_state, center, tube.slot_means(context), theta):
+        if tube.carry(context, discrete_state, center, theta):
             return EventStatus.Succeeded()
         return EventStatus.DidNothing()  # nothing active, nothing held: no state change
 
@@ -477,5 +477,4 @@ class FixedRateCentre:
         state[layout.time] = context.get_time()
         state[layout.recovery] = ~update.certified
         if tube.circulates:
-            means = tube.slot_means(context)
-            tube.carry(context, discrete_state, update.center, means, update.theta)
+            tube.carry(context, discrete_state, update.center, update.theta)
