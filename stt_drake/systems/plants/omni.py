@@ -38,6 +38,15 @@ def wheel_matrix(wheel_radius: float, base_radius: float) -> np.ndarray:
     )
 
 
+def _rows_times(
+    rows: tuple[tuple[float, ...], ...], x: float, y: float, z: float
+) -> tuple[float, float, float]:
+    """The 3 × 3 matrix `rows` times (x, y, z) in Python floats: for 3-vectors, cheaper than
+    numpy's per-call overhead (the plant's and the drive interface's hot paths)."""
+    (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = rows
+    return a0 * x + a1 * y + a2 * z, b0 * x + b1 * y + b2 * z, c0 * x + c1 * y + c2 * z
+
+
 def rotation(heading: float) -> np.ndarray:
     """2D rotation from body to world frame."""
     c, s = np.cos(heading), np.sin(heading)
@@ -69,10 +78,7 @@ class OmniKinematics(LeafSystem):
         # Scalar Python arithmetic on 3-vectors, and as few pybind calls as can be: cheaper
         # than numpy's per-call overhead.
         heading = context.get_continuous_state_vector()[2]
-        w0, w1, w2 = self._wheel_port.Eval(context).tolist()
-        (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = self._twist_rows
-        v_x, v_y = a0 * w0 + a1 * w1 + a2 * w2, b0 * w0 + b1 * w1 + b2 * w2
-        yaw_rate = c0 * w0 + c1 * w1 + c2 * w2
+        v_x, v_y, yaw_rate = _rows_times(self._twist_rows, *self._wheel_port.Eval(context).tolist())
         d_x, d_y = self._disturbance_port.Eval(context).tolist()
         c, s = math.cos(heading), math.sin(heading)  # world velocity = R(ψ) body velocity
         derivatives.SetFromVector([c * v_x - s * v_y + d_x, s * v_x + c * v_y + d_y, yaw_rate])
@@ -140,11 +146,4 @@ class OmniDriveInterface(LeafSystem):
         c, s = math.cos(heading), math.sin(heading)  # body velocity = R(ψ)ᵀ command
         v_x, v_y = c * u_x + s * u_y, -s * u_x + c * u_y
         yaw_rate = -self._heading_gain * heading_error
-        (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = self._wheel_rows
-        output.SetFromVector(
-            [
-                a0 * v_x + a1 * v_y + a2 * yaw_rate,
-                b0 * v_x + b1 * v_y + b2 * yaw_rate,
-                c0 * v_x + c1 * v_y + c2 * yaw_rate,
-            ]
-        )
+        output.SetFromVector(_rows_times(self._wheel_rows, v_x, v_y, yaw_rate))
