@@ -44,6 +44,7 @@ from stt_drake.core.backend import jit_options
 from stt_drake.core.constants import (
     CHI_QUANTILE_MAX_ITERATIONS,
     CHI_QUANTILE_RTOL,
+    CIRCULATION_MIN_SINE,
     SF_IS_ONE_BELOW,
 )
 
@@ -590,7 +591,7 @@ def carry_circulation(
             result[j, i] = axes[j, i] - dot * unit_m[i]
             length += result[j, i] ** 2
         length = math.sqrt(length)
-        if length > 1e-6:
+        if length > CIRCULATION_MIN_SINE:
             for i in range(3):
                 result[j, i] /= length
             continue

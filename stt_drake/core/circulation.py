@@ -57,8 +57,17 @@ def carry_circulation(
     """The circulation axes ω_j (rows, 3D) after one step: zero where obstacle j is not
     active (θ_j = 0); chosen as m̂_j × (η − c) where it has just activated (falling back to
     m̂ × e_z, then m̂ × e_x, when the goal lies along m̂); otherwise carried along, i.e. made
-    orthogonal to the current m̂_j again and renormalised (re-chosen if that degenerates).
-    m̂_j = (c − μ_j)/‖c − μ_j‖ has the direction of m_j (q_j > ε_j while it is active).
+    orthogonal to the current m̂_j again and renormalised (re-chosen where |ω_j × m̂_j| is
+    at most :data:`CIRCULATION_MIN_SINE`: there the law had stopped using ω_j for the goal
+    rule). m̂_j = (c − μ_j)/‖c − μ_j‖ has the direction of m_j for an isotropic belief
+    (q_j > ε_j while it is active).
+
+    At the centre it is carried at, v_j keeps its direction: a carried axis gives
+    ω'_j × m̂_j = (ω_j × m̂_j)/|ω_j − (ω_j·m̂_j)m̂_j|, and a chosen one
+    (m̂_j × g) × m̂_j = the part of g orthogonal to m̂_j, the goal rule's direction the law
+    took without an axis (g the goal, or the e_z/e_x fallback in the same order). So the
+    law's ċ there is the same with the old and the new axes, up to rounding
+    (:meth:`stt_drake.systems.tube.SpatiotemporalTube.keep_evaluation` relies on it).
 
     One call of the compiled :func:`stt_drake.core._kernels.carry_circulation` unless the numpy
     path is selected (the code below is its reference)."""
@@ -76,7 +85,7 @@ def carry_circulation(
     carried = axes - np.sum(axes * unit_m, axis=1, keepdims=True) * unit_m
     length = np.linalg.norm(carried, axis=1)
     result = np.zeros_like(axes)
-    keep = active & (length > 1e-6)
+    keep = active & (length > CIRCULATION_MIN_SINE)  # an axis the law still uses
     result[keep] = carried[keep] / length[keep, None]
     fresh = active & ~keep
     for candidate in (goal, np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])):

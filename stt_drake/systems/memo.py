@@ -5,7 +5,9 @@ invalidates every cache entry: the tube evaluation the invariant monitor made at
 step k (at t_k, x_k) is recomputed by the first stage of step k + 1 at the same time and
 state (with Runge-Kutta 3 that is one evaluation in four). A system whose cache entry is a
 pure function of a few arrays keeps the last result in a :class:`LastResult` and returns it
-when those arrays are bit-for-bit the same; any change, in any array, is a miss. It is a
+when those arrays are bit-for-bit the same; any change, in any array, is a miss, unless the
+caller re-files the result under the new inputs (:meth:`LastResult.rekey`) because it knows
+the computation gives the same result there. It is a
 per-system memo, not state: the result is the one the calculation would produce, so a
 second context (or a Simulator sharing the system) only costs a miss.
 """
@@ -40,11 +42,25 @@ class LastResult:
         self._key: tuple[bytes, ...] | None = None
         self._result: Any = None
 
+    @staticmethod
+    def key(*inputs: np.ndarray | float | None) -> tuple[bytes, ...]:
+        """The key of `inputs`: their exact bytes."""
+        return tuple([_key_part(value) for value in inputs])
+
     def lookup(self, *inputs: np.ndarray | float | None) -> tuple[tuple[bytes, ...], Any]:
         """(key, result): the key of `inputs` and the stored result when the stored key
         equals it, else None (store the new result with :meth:`store`)."""
         key = tuple([_key_part(value) for value in inputs])
         return key, (self._result if key == self._key else None)
+
+    def rekey(self, key: tuple[bytes, ...], new_key: tuple[bytes, ...]) -> bool:
+        """File the result stored under `key` under `new_key` instead, for a caller that
+        knows the computation gives that same result on the new inputs; False (nothing
+        changed) when `key` is not the stored key."""
+        if key != self._key:
+            return False
+        self._key = new_key
+        return True
 
     def store(self, key: tuple[bytes, ...], result: Any) -> Any:
         """Remember `result` under `key`; returns `result`."""

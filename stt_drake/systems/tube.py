@@ -290,19 +290,37 @@ class SpatiotemporalTube(LeafSystem):
         discrete_state: DiscreteValues,
         center: np.ndarray,
         theta: np.ndarray,
-    ) -> bool:
+    ) -> np.ndarray | None:
         """Write the circulation axes after this step (:func:`carry_circulation`) at
-        `center` with θ_j evaluated there; False (nothing written) when no obstacle is
-        active and no axis is held."""
+        `center` with θ_j evaluated there and return them (slots, 3); None (nothing
+        written) when no obstacle is active and no axis is held."""
         axes = self.circulation(context)
         if not theta.any() and not axes.any():  # θ_j ≥ 0: none active, none held
-            return False
+            return None
         active = theta > 0.0
         target = self.law_in(context).target
         mean = self._slot_means(context)
         carried = carry_circulation(axes, center, mean, active, target - center)
         discrete_state.set_value(self._circulation_index, carried.ravel())
-        return True
+        return carried
+
+    def keep_evaluation(
+        self, context: Context, center: np.ndarray, held: np.ndarray, carried: np.ndarray
+    ) -> None:
+        """After the axes `held` were carried to `carried` at `center` (the centre in
+        `context`), the memoised evaluation there stands for the new axes too: v_j keeps its
+        direction when its axis is carried at the centre it is carried at
+        (:func:`carry_circulation`), so ċ is the same up to rounding and the step's first
+        stage need not run the law again. Not with full covariances (there ∇̂q_j is not
+        along c − μ_j)."""
+        if self._full_covariance:
+            return
+        vector = self._belief_port.Eval(context)
+        target = None if self._target_law is None else self._target_port.Eval(context)
+        key = self._last_evaluation.key
+        self._last_evaluation.rekey(
+            key(center, vector, held, target), key(center, vector, carried, target)
+        )
 
 
 class ContinuousCentre:
@@ -343,9 +361,12 @@ class ContinuousCentre:
     def _carry_circulation(self, context: Context, discrete_state: DiscreteValues) -> EventStatus:
         tube = self._tube
         center, theta = self.center(context), tube.evaluation(context).theta
-        if tube.carry(context, discrete_state, center, theta):
-            return EventStatus.Succeeded()
-        return EventStatus.DidNothing()  # nothing active, nothing held: no state change
+        held = tube.circulation(context)
+        carried = tube.carry(context, discrete_state, center, theta)
+        if carried is None:
+            return EventStatus.DidNothing()  # nothing active, nothing held: no state change
+        tube.keep_evaluation(context, center, held, carried)
+        return EventStatus.Succeeded()
 
 
 @dataclass(frozen=True)

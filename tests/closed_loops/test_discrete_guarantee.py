@@ -372,6 +372,51 @@ def test_circulation_does_not_flip_across_the_obstacle_target_line():
     assert flips.any()
 
 
+@pytest.mark.parametrize("compiled", [True, False])
+def test_carrying_the_axes_leaves_the_rate_at_that_centre_unchanged(compiled):
+    """Carried at a centre, the axes give the law there the ċ the held ones gave: a carried
+    ω_j has ω'_j × m̂_j ∥ ω_j × m̂_j, a chosen one gives the goal rule the law took without
+    one (the tube system keeps its memoised evaluation on the strength of this). Held axes
+    at random, some 1e-4 rad off m̂_j (below the law's minimum sine: the law took the goal
+    rule there, so must the re-chosen axis; carrying it kept the direction ω × m̂ before),
+    some zero (none chosen yet); obstacles in their layer ε < q ≤ p_d, so most act."""
+    rng = np.random.default_rng(RNG_SEED + 23)
+    tube = law(np.full(3, 3.0), k3=1.5)  # ν at its unbounded default: no saturation
+    acting = near_parallel = 0
+    for _ in range(200):
+        sigma = rng.uniform(0.05, 0.3, 5)
+        direction = rng.normal(size=(5, 3))
+        direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+        center = rng.uniform(0, 3, 3)
+        distance = 0.3 + sigma * rng.uniform(0.8, 3.0, 5)
+        now = belief(center - distance[:, None] * direction, sigma, 0.2, 0.6, 0.999)
+        held = rng.normal(size=(5, 3))
+        near = rng.random(5) < 0.3
+        turned = np.cross(direction, rng.normal(size=(5, 3)))  # ⟂ m̂_j
+        turned /= np.linalg.norm(turned, axis=1, keepdims=True)
+        held[near] = direction[near] + 1e-4 * turned[near]
+        held /= np.linalg.norm(held, axis=1, keepdims=True)
+        held[rng.random(5) < 0.2] = 0.0
+        with backend.pure_numpy(not compiled):
+            before = tube.evaluate(center, now, circulation=held)
+            active = before.theta > 0.0
+            goal = tube.target - center
+            carried = carry_circulation(held, center, now.mean, active, goal)
+            after = tube.evaluate(center, now, circulation=carried)
+        q, epsilon = before.avoid_probability, now.epsilon
+        acts = active & (q > epsilon)
+        acting += int(acts.sum())
+        near_parallel += int((acts & near).sum())
+        # Each obstacle's terms are k2·θ·m_j and k3·θ·v_j with |v_j| = |m_j|: a few
+        # roundings each (≤ 10 ulp ≈ 2.2e-15 of the largest), summed: 1e-14 of their sum.
+        size = np.linalg.norm(goal) ** (1 / 3) + np.sum(
+            np.where(acts, 1.9 * before.theta * distance / np.where(acts, q - epsilon, 1.0), 0.0)
+        )
+        np.testing.assert_allclose(after.center_rate, before.center_rate, rtol=0, atol=1e-14 * size)
+        np.testing.assert_array_equal(after.theta, before.theta)
+    assert acting > 300 and near_parallel > 60  # the cases above happened
+
+
 def test_compiled_and_numpy_tube_step_agree_with_inflation_and_circulation():
     rng = np.random.default_rng(RNG_SEED + 5)
     for n in (2, 3):

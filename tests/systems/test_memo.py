@@ -79,12 +79,16 @@ def test_tube_contexts_alternating_get_each_their_own_evaluation(law_calls):
     assert law_calls[0] == 2 * 2  # each Eval a miss (the test's own calls not counted)
 
 
-@pytest.mark.parametrize("name", ["omni_hardware_case1", "liveness_clutter_2d"])
+@pytest.mark.parametrize(
+    "name", ["omni_hardware_case1", "liveness_clutter_2d", "uav_authors_field"]
+)
 def test_a_closed_loop_evaluates_the_law_once_per_stage(law_calls, name):
-    """1 s with the monitor (Runge-Kutta 3), with a fixed target and with the guide moving
-    it (the tube's `target` input): the law runs once per derivative evaluation (plus the
-    initial one, plus one per guide update); the monitor's evaluation at the end of each
-    step is the next step's first stage, not a second call."""
+    """1 s with the monitor (Runge-Kutta 3), with a fixed target, with the guide moving
+    it (the tube's `target` input) and in 3D with obstacles acting from the start (their
+    circulation axes carried at every step): the law runs once per derivative evaluation
+    (plus the initial one, plus one per guide update); the monitor's evaluation at the end
+    of each step is the next step's first stage, not a second call, also after the axes
+    were carried (the same ċ there: :meth:`SpatiotemporalTube.keep_evaluation`)."""
     scenario = dataclasses.replace(load_scenario(DIAGRAMS / f"{name}.yaml"), duration=1.0)
     simulator = make_simulator(build_diagram(scenario), scenario, InvariantTracker())
     simulator.Initialize()
