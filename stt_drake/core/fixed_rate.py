@@ -71,7 +71,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from stt_drake.core import backend
-from stt_drake.core.belief import ObstacleBelief
+from stt_drake.core.belief import ObstacleBelief, ObstacleTask
 from stt_drake.core.constants import LAYER_STEP
 from stt_drake.core.probability import (
     period_avoid_probability,
@@ -214,7 +214,8 @@ def advance(
 
     One call of the compiled :func:`stt_drake.core._tube.tube_advance` for n ≤ 3 (unless
     the numpy path is selected; a belief from a port with every slot active:
-    :func:`stt_drake.core._tube.tube_advance_packed`, which reads the port vector itself);
+    :func:`stt_drake.core._tube.tube_advance_packed`, which reads the port vector itself,
+    as :func:`advance_port` does without a belief);
     the steps below are its reference: :func:`_integrate`,
     :func:`_start_radius`, :func:`_pull_back`, then the end radius and θ_j at the end.
     `belief`: the obstacles (all of them: a fixed-rate tube needs every slot active).
@@ -268,6 +269,40 @@ def advance(
     end_radius = law.radius(np.minimum(allowed, ahead))
     theta = law.switching_gains(position, belief)
     return FixedRateUpdate(position, certified, len(path) - 1, start_radius, end_radius, theta)
+
+
+def advance_port(
+    law: _Law,
+    center: np.ndarray,
+    vector: np.ndarray,
+    task: ObstacleTask,
+    duration: float,
+    bounds: BeliefRateBounds,
+    circulation: np.ndarray | None = None,
+    radius: float = math.nan,
+    max_attempts: int = 200,
+) -> FixedRateUpdate:
+    """:func:`advance` of ``ObstacleBelief.from_port(vector, n, task)`` for `center` (n,),
+    float64, and a port `vector` of ``task.count`` slots, every one active (the caller
+    checks): a fixed-rate system's hot path. Where the compiled kernel runs it reads the
+    vector itself (:func:`stt_drake.core._tube.tube_advance_packed`) and no belief is made."""
+    n = len(center)
+    kernel = backend.compiled("tube_advance_packed", n)
+    if kernel is None:
+        belief = ObstacleBelief.from_port(vector, n, task)
+        return advance(law, center, belief, duration, bounds, circulation, radius, max_attempts)
+    return _compiled_advance(
+        kernel,
+        law,
+        center,
+        (task.count, n),
+        (vector, task.table()),
+        duration,
+        bounds,
+        circulation,
+        radius,
+        max_attempts,
+    )
 
 
 def _compiled_advance(

@@ -40,7 +40,7 @@ from stt_drake.core.belief import (
     record_size,
 )
 from stt_drake.core.circulation import carry_circulation
-from stt_drake.core.fixed_rate import BeliefRateBounds
+from stt_drake.core.fixed_rate import BeliefRateBounds, advance_port
 from stt_drake.core.rules import (
     NU_HINT,
     check_continuous_for_covariance,
@@ -411,7 +411,8 @@ class PeriodLayout:
 
 class FixedRateCentre:
     """The fixed-rate tube (update period h): at initialisation and then every h seconds
-    :meth:`TubeLaw.advance` computes the next centre and radius from the belief sampled at
+    :meth:`TubeLaw.advance` (:func:`stt_drake.core.fixed_rate.advance_port`: on the port
+    vector, no belief made) computes the next centre and radius from the belief sampled at
     the update, the way it runs on a robot; the output moves linearly from the values at the
     update to those at the end of the period, and q_j(c(t), t) > ε_j and
     r(t) ≤ d̂_j(c(t), t) are certified for the whole period from `rate_bounds`. Between
@@ -427,6 +428,8 @@ class FixedRateCentre:
         the centre depends on."""
         self._tube = tube
         self._layout = PeriodLayout(len(initial_center), tube.task.count)
+        record = record_size(self._layout.dimension)  # the belief port's slot records
+        self._activity_flags = slice(record - 1, None, record)
         self._state_index = tube.DeclareDiscreteState(self._layout.held(initial_center))
         # The first update at initialisation, then every period on the grid k·h with
         # offset 0 (the grid Drake puts a logger's samples on: fewer update and log times
@@ -434,17 +437,26 @@ class FixedRateCentre:
         # periodic event at t = 0 finds that update done and leaves it.
         tube.DeclareInitializationDiscreteUpdateEvent(self._update)
         tube.DeclarePeriodicDiscreteUpdateEvent(self.update_period, 0.0, self._update)
+        # The period read off the state once per change, not at every output (_interpolated).
+        self._period = tube._declare_cache(
+            "fixed-rate period", self._calc_period, {tube.discrete_state_ticket(self._state_index)}
+        )
         return {tube.xd_ticket(), tube.time_ticket()}
+
+    def _calc_period(self, context: Context, value: AbstractValue) -> None:
+        """([c_k, r_k], [c_{k+1} − c_k, r_{k+1} − r_k], t_k) of the state, as Python floats."""
+        size, time = self._layout.dimension + 1, self._layout.time  # [c, r] twice, then t_k
+        values = context.get_discrete_state(self._state_index).value()[: time + 1].tolist()
+        start = values[:size]
+        value.set_value((start, [values[size + i] - start[i] for i in range(size)], values[time]))
 
     def _interpolated(self, context: Context) -> list[float]:
         """[c(t), r(t)]: linear from the values at the last update to those at the end of
         its period (r is NaN before the first update). Scalar Python arithmetic on the
         n + 1 values: the output port's hot path, cheaper than numpy's per-call overhead."""
-        size, time = self._layout.dimension + 1, self._layout.time  # [c, r] twice, then t_k
-        values = context.get_discrete_state(self._state_index).value()[: time + 1].tolist()
-        fraction = min(max((context.get_time() - values[time]) / self.update_period, 0.0), 1.0)
-        start, end = values[:size], values[size:time]
-        return [a + fraction * (b - a) for a, b in zip(start, end, strict=True)]
+        start, change, start_time = self._period.Eval(context)
+        fraction = min(max((context.get_time() - start_time) / self.update_period, 0.0), 1.0)
+        return [a + fraction * d for a, d in zip(start, change, strict=True)]
 
     def center(self, context: Context) -> np.ndarray:
         return np.array(self._interpolated(context)[:-1])
@@ -469,33 +481,39 @@ class FixedRateCentre:
         """No continuous state."""
 
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
-        tube = self._tube
-        belief = tube.belief(context)
-        if not belief.all_active:
+        tube, layout, now = self._tube, self._layout, context.get_time()
+        # The law reads the port vector itself (advance_port: no belief is made).
+        vector = tube._belief_port.Eval(context)
+        flags = vector[self._activity_flags]
+        if not flags.min() > 0.5:  # every slot active (min: cheaper than an all() of >)
             raise RuntimeError(
-                f"obstacle_belief: slots {np.flatnonzero(~belief.slots.active).tolist()} "
-                f"inactive at t = {context.get_time():.6g} s; the fixed-rate tube's rate "
+                f"obstacle_belief: slots {np.flatnonzero(~(flags > 0.5)).tolist()} "
+                f"inactive at t = {now:.6g} s; the fixed-rate tube's rate "
                 "bounds need every slot active (run a tracked belief in continuous time)"
             )
-        layout = self._layout
         # `discrete_state` holds the current values: update them in place.
         state = discrete_state.get_mutable_value(self._state_index)
-        if state[layout.time] == context.get_time() and not math.isnan(state[layout.start_radius]):
+        if state[layout.time] == now and not math.isnan(state[layout.start_radius]):
             return  # this instant's update is done (initialisation, then the grid at t = 0)
         reached = state[layout.end_center].copy()  # the centre now (end of the last period)
-        update = tube.law_in(context).advance(
+        update = advance_port(
+            tube.law_in(context),
             reached,
-            belief,
+            vector,
+            tube.task,
             self.update_period,
             self._rate_bounds,
             tube.circulation(context),
             radius=state[layout.end_radius],
         )
-        state[layout.start_center] = reached
-        state[layout.start_radius] = update.start_radius
-        state[layout.end_center] = update.center
-        state[layout.end_radius] = update.end_radius
-        state[layout.time] = context.get_time()
+        # [c, r] at both ends of the period, then t_k (PeriodLayout), in one write
+        state[: layout.time + 1] = [
+            *reached.tolist(),
+            update.start_radius,
+            *update.center.tolist(),
+            update.end_radius,
+            now,
+        ]
         state[layout.recovery] = ~update.certified
         if tube.circulates:
             tube.carry(context, discrete_state, update.center, update.theta)
