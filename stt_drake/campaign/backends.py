@@ -36,6 +36,10 @@ POLL_S = 1.0
 DASK_TIMEOUT_S = 60.0
 #: Address schemes a Dask client can use (``host:port`` alone means tcp).
 DASK_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
+#: The module a local pool's forkserver imports last when given `kernels`, and the
+#: environment variable through which it learns their output dimension.
+KERNELS_PRELOAD_MODULE = "stt_drake.campaign.kernels_preload"
+KERNELS_DIMENSION_ENV = "STT_DRAKE_POOL_KERNELS"
 #: ``--workers`` may ask for at most this many processes per core this process may use
 #: (each local worker imports pydrake, ~0.3-0.8 GB; more than the cores only waits).
 MAX_WORKERS_PER_CORE = 4
@@ -86,6 +90,9 @@ class LocalPool:
     server: workers fork from a clean process that has imported pydrake but never run a
     simulation or started a thread (plain "fork" from the campaign process would copy a
     process that has simulated; "spawn" re-imports pydrake in every worker, ~2-3 s each).
+    With `kernels` (an output dimension) the server also loads that dimension's compiled
+    kernels (:mod:`stt_drake.campaign.kernels_preload`), once for every worker and pool (a
+    forkserver is started once per process: a later pool's `preload` and `kernels` are moot).
     The server first imports :data:`~stt_drake.campaign.lifeline.PRELOAD_MODULE` and each
     worker runs :func:`~stt_drake.campaign.lifeline.worker_lifeline`, so they die with
     this process however it ends.
@@ -93,10 +100,15 @@ class LocalPool:
 
     restartable = True
 
-    def __init__(self, workers: int | None = None, preload: Sequence[str] = ()) -> None:
+    def __init__(
+        self, workers: int | None = None, preload: Sequence[str] = (), kernels: int | None = None
+    ) -> None:
         self.slots = default_workers() if workers is None else workers
         self._context = multiprocessing.get_context("forkserver")
         mark_pool_parent()
+        if kernels is not None:
+            os.environ[KERNELS_DIMENSION_ENV] = str(kernels)
+            preload = [*preload, KERNELS_PRELOAD_MODULE]
         self._context.set_forkserver_preload([PRELOAD_MODULE, *preload])
         self.executor: cf.Executor = self._new()
 
@@ -221,12 +233,13 @@ def open_backend(
     scheduler: str | None = None,
     preload: Sequence[str] = (),
     dask_timeout: float = DASK_TIMEOUT_S,
+    kernels: int | None = None,
 ) -> Backend:
-    """A Dask cluster when `scheduler` is given, else a local pool of `workers`; close it
-    with its ``close()``."""
+    """A Dask cluster when `scheduler` is given, else a local pool of `workers` (`preload`
+    and `kernels` as :class:`LocalPool`'s); close it with its ``close()``."""
     if scheduler is not None:
         return DaskCluster(scheduler, dask_timeout)
-    return LocalPool(workers, preload)
+    return LocalPool(workers, preload, kernels)
 
 
 def execute(

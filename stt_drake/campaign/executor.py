@@ -152,7 +152,8 @@ def run_campaign(
     text_hash = hashlib.sha256(text.encode()).hexdigest()
     simulating = CAMPAIGN_KINDS[spec.kind].simulates_runs
     preload = ["stt_drake.campaign", *(["stt_drake.run"] if simulating else [])]
-    backend = open_backend(workers, scheduler, preload, dask_timeout)
+    kernels = scenario.dimension if simulating and scenario is not None else None
+    backend = open_backend(workers, scheduler, preload, dask_timeout, kernels)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
         with folder_lock(out_dir):

@@ -305,7 +305,7 @@ class ObstacleTracker(LeafSystem):
         (blended for `blend_time` after an update)."""
         t = context.get_time()
         state = context.get_discrete_state()  # once: each group lookup from the context costs
-        elapsed = t - state.get_vector(self._update_time)[0]  # a Python float, not numpy's
+        elapsed = t - state.get_value(self._update_time).item(0)  # a Python float, not numpy's
         weight = elapsed / self._blend_time if elapsed < self._blend_time else 1.0
         return self._tracker.belief_vector(
             state.get_value(self._tracks), state.get_value(self._previous), t, weight
