@@ -220,8 +220,8 @@ def make_diagram_simulator(
 def load_kernels(scenario: Scenario, built: SttDiagram) -> float:
     """Compile, or load from numba's on-disk cache, every compiled kernel for the scenario's
     dimension before the run's clock starts (:func:`stt_drake.core.backend.warm_up`; `built`
-    is not needed). Returns the seconds it took: 0.0 on the numpy path, about 0.0 once
-    this process has loaded them."""
+    is not needed). Returns the seconds it took: 0.0 on the numpy path and once this process
+    has loaded them."""
     return backend.warm_up(scenario.dimension)
 
 

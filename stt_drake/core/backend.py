@@ -282,6 +282,7 @@ _state: dict[str, object] = {
     "pure_numpy": os.environ.get(PURE_NUMPY_ENV, "") not in ("", "0"),
     "modules": {},
     "cache": None,
+    "warm": set(),  # the output dimensions whose kernels this process has loaded
 }
 
 
@@ -397,8 +398,10 @@ def warm_up(dimension: int) -> float:
     """Compile, or load from numba's on-disk cache, every kernel of :data:`KERNELS` that
     covers output dimension `dimension`, for the argument types of :data:`SIGNATURES`
     (a run calls this before its clock starts). Returns the seconds it took: 0.0 on the
-    numpy path, about 0.0 once this process has loaded them."""
-    if _state["pure_numpy"]:
+    numpy path and once this process has loaded them (a run of a campaign worker need not
+    parse the signatures again)."""
+    warm: set[int] = _state["warm"]  # type: ignore[assignment]
+    if _state["pure_numpy"] or dimension in warm:  # loaded kernels stay loaded
         return 0.0
     start = time.perf_counter()
     for name, dimensions in KERNELS.items():
@@ -409,4 +412,5 @@ def warm_up(dimension: int) -> float:
             return 0.0
         for signature in SIGNATURES[name]:
             kernel.compile(signature)
+    warm.add(dimension)
     return time.perf_counter() - start

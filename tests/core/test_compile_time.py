@@ -99,9 +99,9 @@ def test_first_run_of_a_process_loads_the_kernels_before_its_clock():
         _assert_factor_is_sim_over_wall(metrics)
     if report["compiled"]:
         # The first run loads (or compiles) every kernel (backend.warm_up); the second finds
-        # them loaded. (Loading from the cache alone reads and links every kernel: under a
-        # second, against a dictionary look-up per kernel once loaded.)
-        assert second["compile_time_s"] < first["compile_time_s"]
+        # them loaded and does not even parse their signatures again.
+        assert first["compile_time_s"] > 0.0
+        assert second["compile_time_s"] == 0.0
     else:  # the numpy path compiles nothing
         assert first["compile_time_s"] == second["compile_time_s"] == 0.0
 
