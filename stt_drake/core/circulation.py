@@ -69,6 +69,8 @@ def carry_circulation(
     law's ċ there is the same with the old and the new axes, up to rounding
     (:meth:`stt_drake.systems.tube.SpatiotemporalTube.keep_evaluation` relies on it).
 
+    `mean` may be a belief port's table: only its first 3 columns are read.
+
     One call of the compiled :func:`stt_drake.core._kernels.carry_circulation` unless the numpy
     path is selected (the code below is its reference)."""
     kernel = backend.compiled("carry_circulation")
@@ -80,7 +82,7 @@ def carry_circulation(
             np.asarray(active, dtype=bool),
             np.asarray(goal, dtype=float),
         )
-    offset = np.asarray(center, dtype=float) - np.asarray(mean, dtype=float)
+    offset = np.asarray(center, dtype=float) - np.asarray(mean, dtype=float)[:, :3]
     unit_m = offset / np.maximum(np.linalg.norm(offset, axis=1, keepdims=True), 1e-300)
     carried = axes - np.sum(axes * unit_m, axis=1, keepdims=True) * unit_m
     length = np.linalg.norm(carried, axis=1)

@@ -278,29 +278,25 @@ class SpatiotemporalTube(LeafSystem):
     ) -> None:
         self._mode.derivatives(context, derivatives)
 
-    def _slot_means(self, context: Context) -> np.ndarray:
-        """μ_j of every slot (slots, n) of the `obstacle_belief` input, read off the port
-        vector (no belief is unpacked: the circulation carry reads them at every step)."""
-        table = self._belief_port.Eval(context).reshape(-1, record_size(self._dimension))
-        return np.ascontiguousarray(table[:, : self._dimension])
-
     def carry(
         self,
         context: Context,
         discrete_state: DiscreteValues,
         center: np.ndarray,
         theta: np.ndarray,
+        axes: np.ndarray,
     ) -> np.ndarray | None:
         """Write the circulation axes after this step (:func:`carry_circulation`) at
-        `center` with θ_j evaluated there and return them (slots, 3); None (nothing
-        written) when no obstacle is active and no axis is held."""
-        axes = self.circulation(context)
-        if not theta.any() and not axes.any():  # θ_j ≥ 0: none active, none held
+        `center` with θ_j evaluated there, from the `axes` held in `context`
+        (:meth:`circulation`), and return them (slots, 3); None (nothing written) when no
+        obstacle is active and no axis is held."""
+        # θ_j ≥ 0: none active, none held (count_nonzero costs a third of any())
+        if not (np.count_nonzero(theta) or np.count_nonzero(axes)):
             return None
-        active = theta > 0.0
-        target = self.law_in(context).target
-        mean = self._slot_means(context)
-        carried = carry_circulation(axes, center, mean, active, target - center)
+        # The port table as it is: μ_j in its first 3 columns (no copy of the means).
+        table = self._belief_port.Eval(context).reshape(self.task.count, -1)
+        goal = self.law_in(context).target - center
+        carried = carry_circulation(axes, center, table, theta > 0.0, goal)
         discrete_state.set_value(self._circulation_index, carried.ravel())
         return carried
 
@@ -362,7 +358,7 @@ class ContinuousCentre:
         tube = self._tube
         center, theta = self.center(context), tube.evaluation(context).theta
         held = tube.circulation(context)
-        carried = tube.carry(context, discrete_state, center, theta)
+        carried = tube.carry(context, discrete_state, center, theta, held)
         if carried is None:
             return EventStatus.DidNothing()  # nothing active, nothing held: no state change
         tube.keep_evaluation(context, center, held, carried)
@@ -496,6 +492,7 @@ class FixedRateCentre:
         if state[layout.time] == now and not math.isnan(state[layout.start_radius]):
             return  # this instant's update is done (initialisation, then the grid at t = 0)
         reached = state[layout.end_center].copy()  # the centre now (end of the last period)
+        circulation = tube.circulation(context)
         update = advance_port(
             tube.law_in(context),
             reached,
@@ -503,7 +500,7 @@ class FixedRateCentre:
             tube.task,
             self.update_period,
             self._rate_bounds,
-            tube.circulation(context),
+            circulation,
             radius=state[layout.end_radius],
         )
         # [c, r] at both ends of the period, then t_k (PeriodLayout), in one write
@@ -515,5 +512,5 @@ class FixedRateCentre:
             now,
         ]
         state[layout.recovery] = ~update.certified
-        if tube.circulates:
-            tube.carry(context, discrete_state, update.center, update.theta)
+        if circulation is not None:
+            tube.carry(context, discrete_state, update.center, update.theta, circulation)
