@@ -72,16 +72,17 @@ def symmetric_eigen(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(**_JIT)
-def projected_sigma(offset: np.ndarray, covariance: np.ndarray, distance: float) -> float:
-    """s = √(uᵀΣu) for u = offset/distance (u = e_0 at distance 0): the standard deviation
-    of the obstacle centre along the line to the point (the pruning bounds' σ)."""
+def projected_sigma(offset: np.ndarray, covariances: np.ndarray, j: int, distance: float) -> float:
+    """s = √(uᵀΣ_ju) for u = offset/distance (u = e_0 at distance 0), Σ_j = covariances[j]:
+    the standard deviation of obstacle j's centre along the line to the point (the pruning
+    bounds' σ). Σ_j is read in place: a view per obstacle would be reference counted."""
     n = offset.shape[0]
     if distance == 0.0:
-        return math.sqrt(covariance[0, 0])
+        return math.sqrt(covariances[j, 0, 0])
     total = 0.0
     for i in range(n):
         for k in range(n):
-            total += offset[i] * covariance[i, k] * offset[k]
+            total += offset[i] * covariances[j, i, k] * offset[k]
     return math.sqrt(max(total, 0.0)) / distance
 
 

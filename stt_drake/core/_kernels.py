@@ -542,8 +542,9 @@ def chi_isf_array(eps: np.ndarray, a: np.ndarray, n: int) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- geometry
-@njit(**_JIT)
+@njit(**{**_JIT, "inline": "always"})  # per obstacle in the loops: no call
 def _distance(point: np.ndarray, mean: np.ndarray, j: int) -> float:
+    """‖point − μ_j‖ for μ_j in the first n columns of row j of `mean`, n = len(point)."""
     total = 0.0
     for i in range(point.shape[0]):
         d = point[i] - mean[j, i]

@@ -395,11 +395,24 @@ class TubeLaw:
             reach = spread = _EMPTY
             if inflation is not None:
                 reach, spread, _axes = kernel_extras((count, n), None, inflation)
-            # The fields themselves, not belief.arrays(): one Python call less per evaluation.
-            arguments = (belief.mean, belief.sigma, belief.radius, belief.epsilon, belief.p_d)
-            return evaluation_of(
-                kernel(center, *arguments, k2, k3, reach, spread, axes, constants, _EMPTY), n
+            # The fields themselves, one by one: no belief.arrays() call and no argument tuple
+            # to unpack (~0.15 µs of a ~4 µs evaluation).
+            out = kernel(
+                center,
+                belief.mean,
+                belief.sigma,
+                belief.radius,
+                belief.epsilon,
+                belief.p_d,
+                k2,
+                k3,
+                reach,
+                spread,
+                axes,
+                constants,
+                _EMPTY,
             )
+            return evaluation_of(out, n)
         return evaluation_of(
             kernel(
                 center,
