@@ -481,7 +481,8 @@ class FixedRateCentre:
         # The law reads the port vector itself (advance_port: no belief is made).
         vector = tube._belief_port.Eval(context)
         flags = vector[self._activity_flags]
-        if not flags.min() > 0.5:  # every slot active (min: cheaper than an all() of >)
+        # Every slot active (min: cheaper than an all() of >; no slot at all: nothing to check)
+        if flags.size and not flags.min() > 0.5:
             raise RuntimeError(
                 f"obstacle_belief: slots {np.flatnonzero(~(flags > 0.5)).tolist()} "
                 f"inactive at t = {now:.6g} s; the fixed-rate tube's rate "
