@@ -119,3 +119,60 @@ def test_a_changed_belief_is_a_miss_and_the_evaluation_reads_it():
     )
     assert port_tube[-1] == law.evaluate(center, moved).radius
     assert not np.array_equal(evaluation.avoid_probability, first.avoid_probability)
+
+
+@pytest.mark.parametrize("full_covariance", [False, True])
+def test_the_carry_keeps_the_evaluation_only_where_the_rate_stays(law_calls, full_covariance):
+    """3D, one obstacle acting with a held circulation axis the carry turns (it is not
+    orthogonal to m̂): after the carry the first stage reads ċ at the new axis. With σ² I
+    that is the memo's result (no law call; the law's own evaluation at the new axis agrees
+    to rounding); with a full Σ the carried axis does change v_j (∇̂q_j is not along
+    c − μ_j), so the law runs again and gives its own result."""
+    law = TubeLaw(
+        target=np.array([3.0, 0.5, 0.2]),
+        k1=0.7,
+        k2=0.4,
+        k3=0.8,
+        r_min=0.1,
+        r_max=0.3,
+        nu=40.0,
+        max_center_speed=np.inf,
+    )
+    covariance = np.diag([0.09, 0.01, 0.04]) if full_covariance else 0.04 * np.eye(3)
+    belief = dataclasses.replace(
+        TUBE_BELIEF,
+        mean=np.array([[1.0, 0.3, -0.1], [-4.0, 5.0, 1.0]]),
+        sigma=np.array([0.3, 0.2]),
+        covariance=np.stack([covariance, 0.04 * np.eye(3)]) if full_covariance else None,
+    )
+    tube = SpatiotemporalTube(law, np.zeros(3), belief.task, full_covariance=full_covariance)
+    center = np.array([0.45, 0.1, 0.05])
+    context = tube_context(tube, center, belief)
+    held = np.array([[0.6, 0.0, 0.8], [0.0, 0.0, 0.0]])  # unit, 0.46 rad off ⟂ m̂
+    context.SetDiscreteState(held.ravel())
+    evaluation = tube.evaluation(context)
+    assert evaluation.theta[0] > 0.0 and evaluation.avoid_probability[0] > belief.epsilon[0]
+    before = tube.EvalTimeDerivatives(context).CopyToVector()
+    discrete = context.get_discrete_state().Clone()
+    tube._mode._carry_circulation(context, discrete)  # the per-step event's callback
+    carried = discrete.get_vector(0).CopyToVector()
+    assert not np.allclose(carried, held.ravel())  # the carry did turn the axis
+    context.SetDiscreteState(carried)
+    calls = law_calls[0]
+    after = tube.EvalTimeDerivatives(context).CopyToVector()
+    vector = belief.to_vector()
+    fresh = law.evaluate_port(center, vector, belief.task, full_covariance, carried.reshape(2, 3))
+    if full_covariance:
+        assert law_calls[0] == calls + 1
+        # The same compiled call on the same inputs in this process: equal bit for bit.
+        np.testing.assert_array_equal(after, fresh.center_rate)
+        assert not np.allclose(after, before, rtol=1e-6)
+    else:
+        assert law_calls[0] == calls
+        np.testing.assert_array_equal(after, before)
+        # The attraction k1·∛(η − c), k2·θ·m and k3·θ·v (|v| = |m| = d/(q − ε)), each to a
+        # few roundings: 1e-14 of their sum bounds the difference.
+        q, theta = evaluation.avoid_probability[0], evaluation.theta[0]
+        m = np.linalg.norm(center - belief.mean[0]) / (q - belief.epsilon[0])
+        size = 0.7 * np.abs(np.cbrt(law.target - center)).sum() + (0.4 + 0.8) * theta * m
+        np.testing.assert_allclose(after, fresh.center_rate, rtol=0, atol=1e-14 * size)
