@@ -41,6 +41,12 @@ def belief_size(count: int, dimension: int) -> int:
     return count * record_size(dimension)
 
 
+def slot_active(vector: np.ndarray, dimension: int) -> np.ndarray:
+    """Whether each slot of a belief port `vector` is active (its record's flag > 0.5),
+    read off the vector in place (nothing unpacked)."""
+    return vector[record_size(dimension) - 1 :: record_size(dimension)] > 0.5
+
+
 def check_vector_length(length: int, dimension: int) -> None:
     """ValueError unless a port vector of `length` is a whole number of slot records."""
     n = dimension
@@ -371,10 +377,8 @@ class PortBelief(ObstacleBelief):
 
     @cached_property
     def all_active(self) -> bool:
-        """Whether every slot is active, read off the vector's flags (nothing unpacked: a
-        fixed-rate update asks this of every belief it reads)."""
-        size = record_size(self._dimension)
-        return bool((self.vector[size - 1 :: size] > 0.5).all())
+        """Whether every slot is active (:func:`slot_active`: nothing unpacked)."""
+        return bool(slot_active(self.vector, self._dimension).all())
 
     @cached_property
     def slots(self) -> GaussianBelief:

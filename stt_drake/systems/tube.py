@@ -37,7 +37,7 @@ from stt_drake.core.belief import (
     ObstacleTask,
     PortBelief,
     belief_size,
-    record_size,
+    slot_active,
 )
 from stt_drake.core.circulation import carry_circulation
 from stt_drake.core.fixed_rate import BeliefRateBounds, advance_port
@@ -424,8 +424,6 @@ class FixedRateCentre:
         the centre depends on."""
         self._tube = tube
         self._layout = PeriodLayout(len(initial_center), tube.task.count)
-        record = record_size(self._layout.dimension)  # the belief port's slot records
-        self._activity_flags = slice(record - 1, None, record)
         self._state_index = tube.DeclareDiscreteState(self._layout.held(initial_center))
         # The first update at initialisation, then every period on the grid k·h with
         # offset 0 (the grid Drake puts a logger's samples on: fewer update and log times
@@ -480,11 +478,10 @@ class FixedRateCentre:
         tube, layout, now = self._tube, self._layout, context.get_time()
         # The law reads the port vector itself (advance_port: no belief is made).
         vector = tube._belief_port.Eval(context)
-        flags = vector[self._activity_flags]
-        # Every slot active (min: cheaper than an all() of >; no slot at all: nothing to check)
-        if flags.size and not flags.min() > 0.5:
+        active = slot_active(vector, layout.dimension)
+        if not active.all():
             raise RuntimeError(
-                f"obstacle_belief: slots {np.flatnonzero(~(flags > 0.5)).tolist()} "
+                f"obstacle_belief: slots {np.flatnonzero(~active).tolist()} "
                 f"inactive at t = {now:.6g} s; the fixed-rate tube's rate "
                 "bounds need every slot active (run a tracked belief in continuous time)"
             )
