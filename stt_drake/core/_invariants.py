@@ -16,7 +16,7 @@ import numpy as np
 from numba import njit
 
 from stt_drake.core._anisotropic import ball_probabilities
-from stt_drake.core._kernels import _nan_min, active_covariances
+from stt_drake.core._kernels import _distance, _nan_min, active_covariances
 from stt_drake.core.backend import jit_options
 from stt_drake.core.constants import HIT_NEGLIGIBLE_SIGMAS
 
@@ -77,10 +77,8 @@ def anisotropic_invariants(
         negligible = HIT_NEGLIGIBLE_SIGMAS * math.sqrt(variances[-1])
         for k in range(3):
             point = output if k == 2 else center
-            distance = 0.0  # ‖point − μ_j‖; rotated into Σ_j's frame only where integrated
-            for i in range(n):
-                distance += (point[i] - mean[j, i]) ** 2
-            if math.sqrt(distance) > radii[k] + negligible:
+            # ‖point − μ_j‖; rotated into Σ_j's frame only where integrated
+            if _distance(point, mean, j) > radii[k] + negligible:
                 q[j, k] = 1.0  # a hit below half an ulp of 1 (HIT_NEGLIGIBLE_SIGMAS)
             else:
                 q[j, k] = ball_probabilities(variances, (point - mean[j]) @ axes, radii[k])[1]
