@@ -67,6 +67,27 @@ def test_the_evaluation_fields_are_separate_arrays_of_the_right_length():
     assert not np.shares_memory(evaluation.avoid_probability, evaluation.theta)
 
 
+@pytest.mark.parametrize("dimension", [2, 3])
+def test_the_per_obstacle_fields_made_on_first_read_are_the_law_s(dimension):
+    """q_j, d̂_j and θ_j of a compiled evaluation are made when first read: read in any
+    order, after a pickle or a copy, or through dataclasses.replace, they are the numpy
+    reference's, and the record stays frozen."""
+    law, center, belief = obstacle_field(9, dimension, worst_case=True)
+    with backend.pure_numpy():
+        reference = law.evaluate(center, belief)
+    evaluation = law.evaluate(center, belief)
+    assert evaluation.theta is evaluation.theta  # made once, then kept
+    for made in (
+        evaluation,
+        pickle.loads(pickle.dumps(law.evaluate(center, belief))),
+        copy.deepcopy(law.evaluate(center, belief)),
+        replace(law.evaluate(center, belief), radius=reference.radius),
+    ):
+        _same(made, reference, rtol=1e-8)
+    with pytest.raises(AttributeError):
+        evaluation.avoid_probability = reference.avoid_probability
+
+
 @pytest.mark.parametrize("seed", range(20))
 def test_soft_min_radius_matches_logsumexp_with_skipped_terms(seed):
     """Eq. (14) against scipy: arguments from far below to far above r_max (terms skipped
