@@ -254,7 +254,8 @@ class TubeLaw:
         self, name: str, n: int, count: int, mode: str
     ) -> tuple[Callable[..., tuple], np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """(compiled kernel `name`, k2, k3, constants, empty circulation (0, n)) for `count`
-        obstacles in pruning `mode`, or None where the numpy reference runs
+        obstacles in pruning `mode` (full covariances, the "exact_" kernels, prune with
+        their own bound: :func:`_kernel_mode`), or None where the numpy reference runs
         (:func:`stt_drake.core.backend.compiled`). Looked up once per law and key, not per
         evaluation: the lookup, the gains' checks and the arrays cost more than the kernel's
         pruned obstacles (:meth:`with_target` starts the law's table afresh)."""
@@ -267,7 +268,8 @@ class TubeLaw:
             kernel = backend.compiled(name, n)
             if kernel is None:
                 return None
-            call = (kernel, *self.kernel_arguments(count, mode), np.empty((0, n)))
+            constants_mode = _kernel_mode(name.startswith("exact"), mode)
+            call = (kernel, *self.kernel_arguments(count, constants_mode), np.empty((0, n)))
             calls[key] = call
         return call
 
@@ -354,7 +356,7 @@ class TubeLaw:
         where the numpy reference runs."""
         n, count = len(center), task.count
         name = "exact_tube_step_packed" if full else "tube_step_packed"
-        call = self._kernel_call(name, n, count, _kernel_mode(full, mode))
+        call = self._kernel_call(name, n, count, mode)
         if call is None:
             return None
         kernel, k2, k3, constants, axes = call
@@ -379,8 +381,7 @@ class TubeLaw:
         full = belief.covariance is not None
         if inflation is not None:
             check_continuous_for_covariance(full, True, "inflation", inflation, "None")
-        name = "exact_tube_step" if full else "tube_step"
-        call = self._kernel_call(name, n, count, _kernel_mode(full, mode))
+        call = self._kernel_call("exact_tube_step" if full else "tube_step", n, count, mode)
         if call is None:
             prune_above = {
                 "pruned": self.anisotropic_prune_above if full else self.prune_above,
