@@ -50,6 +50,9 @@ from stt_drake.core.rules import (
 from stt_drake.core.tube import TubeEvaluation, TubeLaw
 from stt_drake.systems.memo import LastResult
 
+# The carry's statuses, made once (each EventStatus made is a call into Drake; at every step)
+_NOTHING_CARRIED, _CARRIED = EventStatus.DidNothing(), EventStatus.Succeeded()
+
 
 class SpatiotemporalTube(LeafSystem):
     """The tube Γ(t) = B(c(t), r(t)) of Sec. 3, driven online by the obstacle belief.
@@ -83,6 +86,20 @@ class SpatiotemporalTube(LeafSystem):
     With ``target_input=True`` the target η is read from an extra input port `target` (n)
     instead of ``law.target`` — a task sequencer switches it (e.g. a pick-and-place).
     """
+
+    def __new__(
+        cls,
+        law: TubeLaw,
+        initial_center: np.ndarray,
+        task: ObstacleTask,
+        *args: object,
+        **kwargs: object,
+    ) -> SpatiotemporalTube:
+        # A fixed-rate tube has no continuous state: made as _FixedRateTube, which keeps
+        # Drake's own DoCalcTimeDerivatives, no derivative evaluation calls into Python.
+        update_period = args[0] if args else kwargs.get("update_period")
+        fixed_rate = cls is SpatiotemporalTube and update_period is not None
+        return super().__new__(_FixedRateTube if fixed_rate else cls)
 
     def __init__(
         self,
@@ -130,6 +147,8 @@ class SpatiotemporalTube(LeafSystem):
             else FixedRateCentre(update_period, rate_bounds)
         )
         tickets = self._mode.declare(self, initial_center)
+        # The axes are the only discrete state (continuous time): read as the whole vector
+        self._circulation_alone = self.circulates and self.num_discrete_state_groups() == 1
         # The law with the target in use: rebuilt only when the `target` input changes.
         self._target_law = (
             self._declare_cache(
@@ -158,7 +177,7 @@ class SpatiotemporalTube(LeafSystem):
         self.DeclareVectorOutputPort(
             "tube",
             self._dimension + 1,
-            lambda context, output: output.SetFromVector(self._mode.tube_value(context)),
+            self._mode.calc_tube,
             prerequisites_of_calc=tickets | {self.all_input_ports_ticket()},
         )
         self.DeclareVectorOutputPort(
@@ -213,7 +232,11 @@ class SpatiotemporalTube(LeafSystem):
         """The circulation axes (slots, 3) held in `context` (None: not 3D)."""
         if self._circulation_index is None:
             return None
-        axes = context.get_discrete_state(self._circulation_index).CopyToVector()
+        axes = (  # the whole-vector read costs a quarter less than the group's
+            context.get_discrete_state_vector()
+            if self._circulation_alone
+            else context.get_discrete_state(self._circulation_index)
+        ).CopyToVector()
         return axes.reshape(self.task.count, 3)
 
     def law_in(self, context: Context) -> TubeLaw:
@@ -278,6 +301,13 @@ class SpatiotemporalTube(LeafSystem):
     ) -> None:
         self._mode.derivatives(context, derivatives)
 
+    @staticmethod
+    def carries(theta: np.ndarray, axes: np.ndarray) -> bool:
+        """Whether the axes need carrying (:meth:`carry`): some obstacle is active (θ_j > 0)
+        or some axis is held."""
+        # θ_j ≥ 0: none active, none held (count_nonzero costs a third of any())
+        return bool(np.count_nonzero(theta) or np.count_nonzero(axes))
+
     def carry(
         self,
         context: Context,
@@ -285,38 +315,52 @@ class SpatiotemporalTube(LeafSystem):
         center: np.ndarray,
         theta: np.ndarray,
         axes: np.ndarray,
-    ) -> np.ndarray | None:
+        keep: bool = False,
+    ) -> np.ndarray:
         """Write the circulation axes after this step (:func:`carry_circulation`) at
         `center` with θ_j evaluated there, from the `axes` held in `context`
-        (:meth:`circulation`), and return them (slots, 3); None (nothing written) when no
-        obstacle is active and no axis is held."""
-        # θ_j ≥ 0: none active, none held (count_nonzero costs a third of any())
-        if not (np.count_nonzero(theta) or np.count_nonzero(axes)):
-            return None
+        (:meth:`circulation`), and return them (slots, 3). With `keep` (`center` is the
+        centre in `context`), the memoised evaluation there stands for the carried axes too
+        (:meth:`keep_evaluation`)."""
+        vector = self._belief_port.Eval(context)
         # The port table as it is: μ_j in its first 3 columns (no copy of the means).
-        table = self._belief_port.Eval(context).reshape(self.task.count, -1)
+        table = vector.reshape(self.task.count, -1)
         goal = self.law_in(context).target - center
         carried = carry_circulation(axes, center, table, theta > 0.0, goal)
         discrete_state.set_value(self._circulation_index, carried.ravel())
+        if keep:
+            self.keep_evaluation(context, center, vector, axes, carried)
         return carried
 
     def keep_evaluation(
-        self, context: Context, center: np.ndarray, held: np.ndarray, carried: np.ndarray
+        self,
+        context: Context,
+        center: np.ndarray,
+        vector: np.ndarray,
+        held: np.ndarray,
+        carried: np.ndarray,
     ) -> None:
         """After the axes `held` were carried to `carried` at `center` (the centre in
-        `context`), the memoised evaluation there stands for the new axes too: v_j keeps its
-        direction when its axis is carried at the centre it is carried at
-        (:func:`carry_circulation`), so ċ is the same up to rounding and the step's first
-        stage need not run the law again. Not with full covariances (there ∇̂q_j is not
-        along c − μ_j)."""
+        `context`, `vector` its belief port value), the memoised evaluation there stands for
+        the new axes too: v_j keeps its direction when its axis is carried at the centre it
+        is carried at (:func:`carry_circulation`), so ċ is the same up to rounding and the
+        step's first stage need not run the law again. Not with full covariances (there
+        ∇̂q_j is not along c − μ_j)."""
         if self._full_covariance:
             return
-        vector = self._belief_port.Eval(context)
         target = None if self._target_law is None else self._target_port.Eval(context)
         key = self._last_evaluation.key
-        self._last_evaluation.rekey(
-            key(center, vector, held, target), key(center, vector, carried, target)
-        )
+        held_key = key(center, vector, held, target)  # the order of _calc_evaluation's lookup
+        # The same key but for the axes (the other parts' bytes made once)
+        self._last_evaluation.rekey(held_key, (*held_key[:2], *key(carried), *held_key[3:]))
+
+
+class _FixedRateTube(SpatiotemporalTube):
+    """A :class:`SpatiotemporalTube` with ``update_period=h`` (made by its constructor): no
+    continuous state, so Drake's own (empty) time derivatives instead of a Python call per
+    derivative evaluation (a few per cent of a fixed-rate closed loop)."""
+
+    DoCalcTimeDerivatives = LeafSystem.DoCalcTimeDerivatives
 
 
 class ContinuousCentre:
@@ -342,9 +386,9 @@ class ContinuousCentre:
     def set_center(self, context: Context, center: np.ndarray) -> None:
         context.SetContinuousState(center)
 
-    def tube_value(self, context: Context) -> np.ndarray:
+    def calc_tube(self, context: Context, output: BasicVector) -> None:
         """The `tube` output [c, r]: the law's exact radius at the current centre."""
-        return self._tube.evaluated(context)[1]
+        output.SetFromVector(self._tube._evaluation.Eval(context)[1])
 
     def recovery(self, context: Context) -> np.ndarray:
         """1.0 where q_j(c) ≤ ε_j (an inactive slot reads q = 1 > ε: never recovering)."""
@@ -352,17 +396,15 @@ class ContinuousCentre:
         return (q <= self._tube.task.epsilon) * 1.0
 
     def derivatives(self, context: Context, derivatives: ContinuousState) -> None:
-        derivatives.get_mutable_vector().SetFromVector(self._tube.evaluation(context).center_rate)
+        derivatives.SetFromVector(self._tube._evaluation.Eval(context)[0].center_rate)
 
     def _carry_circulation(self, context: Context, discrete_state: DiscreteValues) -> EventStatus:
         tube = self._tube
-        center, theta = self.center(context), tube.evaluation(context).theta
-        held = tube.circulation(context)
-        carried = tube.carry(context, discrete_state, center, theta, held)
-        if carried is None:
-            return EventStatus.DidNothing()  # nothing active, nothing held: no state change
-        tube.keep_evaluation(context, center, held, carried)
-        return EventStatus.Succeeded()
+        theta, held = tube.evaluation(context).theta, tube.circulation(context)
+        if not tube.carries(theta, held):
+            return _NOTHING_CARRIED  # nothing active, nothing held: no state change
+        tube.carry(context, discrete_state, self.center(context), theta, held, keep=True)
+        return _CARRIED
 
 
 @dataclass(frozen=True)
@@ -449,7 +491,9 @@ class FixedRateCentre:
         its period (r is NaN before the first update). Scalar Python arithmetic on the
         n + 1 values: the output port's hot path, cheaper than numpy's per-call overhead."""
         start, change, start_time = self._period.Eval(context)
-        fraction = min(max((context.get_time() - start_time) / self.update_period, 0.0), 1.0)
+        fraction = (context.get_time() - start_time) / self.update_period
+        # clamped to [0, 1] by comparisons: min(max(...)) costs two builtin calls more
+        fraction = 0.0 if fraction < 0.0 else 1.0 if fraction > 1.0 else fraction
         return [a + fraction * d for a, d in zip(start, change, strict=True)]
 
     def center(self, context: Context) -> np.ndarray:
@@ -459,13 +503,11 @@ class FixedRateCentre:
         """Hold the centre at `center` until the next update."""
         context.SetDiscreteState(self._state_index, self._layout.held(center, context.get_time()))
 
-    def tube_value(self, context: Context) -> list[float] | np.ndarray:
+    def calc_tube(self, context: Context, output: BasicVector) -> None:
         """The `tube` output: the certified interpolation (before the first update: the
         law's)."""
         tube = self._interpolated(context)
-        if math.isnan(tube[-1]):
-            return self._tube.evaluated(context)[1]
-        return tube
+        output.SetFromVector(self._tube.evaluated(context)[1] if math.isnan(tube[-1]) else tube)
 
     def recovery(self, context: Context) -> np.ndarray:
         """The flags of the last update: 1.0 where the period was not certified."""
@@ -479,7 +521,7 @@ class FixedRateCentre:
         # The law reads the port vector itself (advance_port: no belief is made).
         vector = tube._belief_port.Eval(context)
         active = slot_active(vector, layout.dimension)
-        if not active.all():
+        if np.count_nonzero(active) < active.size:  # not all active (a third of all()'s cost)
             raise RuntimeError(
                 f"obstacle_belief: slots {np.flatnonzero(~active).tolist()} "
                 f"inactive at t = {now:.6g} s; the fixed-rate tube's rate "
@@ -510,5 +552,5 @@ class FixedRateCentre:
             now,
         ]
         state[layout.recovery] = ~update.certified
-        if circulation is not None:
+        if circulation is not None and tube.carries(update.theta, circulation):
             tube.carry(context, discrete_state, update.center, update.theta, circulation)

@@ -56,3 +56,33 @@ def test_output_follows_the_state_within_a_period_and_after_set_center():
     tube.set_center(context, elsewhere)  # no radius yet: the output is the law's there
     expected = LAW.evaluate(elsewhere, BELIEF).radius
     np.testing.assert_allclose(output.Eval(context), [*elsewhere, expected], rtol=1e-12)
+
+
+def test_only_a_continuous_tube_computes_its_derivatives_in_python(monkeypatch):
+    """A fixed-rate tube (the period by keyword or in its place) is a SpatiotemporalTube
+    without continuous state whose derivatives Drake computes without calling into
+    Python; a continuous one computes ċ there at each evaluation."""
+    calls = []
+    derivatives = SpatiotemporalTube.DoCalcTimeDerivatives
+
+    def counted(tube, context, output):
+        calls.append(tube)
+        derivatives(tube, context, output)
+
+    monkeypatch.setattr(SpatiotemporalTube, "DoCalcTimeDerivatives", counted)
+    start, bounds = np.array([0.4, -0.1]), BeliefRateBounds.still(2)
+    tubes = [
+        SpatiotemporalTube(LAW, start, BELIEF.task, update_period=0.02, rate_bounds=bounds),
+        SpatiotemporalTube(LAW, start, BELIEF.task, 0.02, False, bounds),
+        SpatiotemporalTube(LAW, start, BELIEF.task),
+    ]
+    rates = []
+    for tube in tubes:
+        context = tube.CreateDefaultContext()
+        tube.GetInputPort("obstacle_belief").FixValue(context, BELIEF.to_vector())
+        rates.append(tube.EvalTimeDerivatives(context).CopyToVector())
+    assert all(isinstance(tube, SpatiotemporalTube) for tube in tubes)
+    assert [tube.update_period for tube in tubes] == [0.02, 0.02, None]
+    assert len(calls) == 1 and calls[0] is tubes[2]
+    assert rates[0].size == rates[1].size == 0
+    np.testing.assert_array_equal(rates[2], LAW.evaluate(start, BELIEF).center_rate)
