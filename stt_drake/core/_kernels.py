@@ -766,23 +766,23 @@ def _nan_min(x: float, y: float) -> float:
 
 # --------------------------------------------------------------------------- belief
 @njit(**_JIT)
+def _cut(array: np.ndarray, offset: int, count: int) -> tuple[np.ndarray, int]:
+    """The view array[offset : offset + count] and the offset after it (how the packed
+    kernels below read their arguments in place)."""
+    return array[offset : offset + count], offset + count
+
+
+@njit(**_JIT)
+def _cut_rows(array: np.ndarray, offset: int, rows: int, width: int) -> tuple[np.ndarray, int]:
+    """The next rows·width entries of `array` from `offset` as a (rows, width) view, and the
+    offset after them."""
+    view, after = _cut(array, offset, rows * width)
+    return view.reshape((rows, width)), after
+
+
+@njit(**_JIT)
 def belief_table(
-    template: np.ndarray,
-    t: float,
-    oscillating: np.ndarray,
-    center: np.ndarray,
-    amplitude: np.ndarray,
-    angular_frequency: np.ndarray,
-    phase: np.ndarray,
-    moving: np.ndarray,
-    start: np.ndarray,
-    velocity: np.ndarray,
-    sampled: np.ndarray,
-    sample_times: np.ndarray,
-    sample_positions: np.ndarray,
-    first: np.ndarray,
-    last: np.ndarray,
-    bounded: np.ndarray,
+    template: np.ndarray, t: float, values: np.ndarray, layout: np.ndarray
 ) -> np.ndarray:
     """The belief port vector at time t (:class:`stt_drake.systems.belief_source.
     ObstacleBeliefSource`): a copy of the (m, n + n² + 1) `template`, with the means of the
@@ -791,9 +791,27 @@ def belief_table(
     track k is rows first[k]..last[k] of `sample_times`, `sample_positions`) interpolated
     in the segment found by bisection, held outside the span, the later sample at a
     repeated time (the arithmetic of :mod:`stt_drake.core.motion`); a `bounded` track's
-    row is active (1.0) inside its span only."""
+    row is active (1.0) inside its span only.
+
+    These arrays come packed in `layout` and `values`, two arguments instead of fourteen (a
+    compiled call's cost grows with its argument count); their order is
+    :attr:`stt_drake.core.motion.MotionTable.kernel_layout`'s, and the views are read in place."""
+    n, oscillating_count, moving_count, sampled_count, sample_count = layout[:5]
+    oscillating, at = _cut(layout, 5, oscillating_count)
+    moving, at = _cut(layout, at, moving_count)
+    sampled, at = _cut(layout, at, sampled_count)
+    first, at = _cut(layout, at, sampled_count)
+    last, at = _cut(layout, at, sampled_count)
+    bounded, _ = _cut(layout, at, sampled_count)
+    center, at = _cut_rows(values, 0, oscillating_count, n)
+    amplitude, at = _cut_rows(values, at, oscillating_count, n)
+    angular_frequency, at = _cut(values, at, oscillating_count)
+    phase, at = _cut_rows(values, at, oscillating_count, n)
+    start, at = _cut_rows(values, at, moving_count, n)
+    velocity, at = _cut_rows(values, at, moving_count, n)
+    sample_times, at = _cut(values, at, sample_count)
+    sample_positions, _ = _cut_rows(values, at, sample_count, n)
     table = template.copy()
-    n = center.shape[1]
     for k in range(oscillating.shape[0]):
         j = oscillating[k]
         for i in range(n):
@@ -890,17 +908,26 @@ def funnel_control(
 
 @njit(**_JIT)
 def funnel_control_packed(
-    t: float,
-    states: np.ndarray,
-    tube: np.ndarray,
-    kappa: np.ndarray,
-    funnel_start: np.ndarray,
-    funnel_end: np.ndarray,
-    funnel_rate: np.ndarray,
-    saturation: float,
-) -> tuple[np.ndarray, np.ndarray, bool]:
-    """:func:`funnel_control` with the tube as its port vector [c, r]."""
+    t: float, states: np.ndarray, tube: np.ndarray, law: np.ndarray
+) -> np.ndarray | None:
+    """:func:`funnel_control`'s control u with the tube as its port vector [c, r] and the
+    law's constants packed in one array (few arguments and one returned array: a compiled
+    call's cost grows with both), `law` = [saturation, κ (N,), p, q, μ ((N − 1)·n each)]
+    (:meth:`stt_drake.core.control.FunnelController.packed_law`); N = len(states)/n.
+
+    Returns:
+        u (n,), or None if an input is not finite or the lengths do not fit.
+    """
     n = tube.shape[0] - 1
-    return funnel_control(
-        t, states, tube[:n], tube[n], kappa, funnel_start, funnel_end, funnel_rate, saturation
+    stages = states.shape[0] // n if n > 0 else 0
+    fits = stages > 0 and states.shape[0] == stages * n
+    if not (fits and law.shape[0] == 1 + stages + 3 * (stages - 1) * n):
+        return None
+    kappa, at = _cut(law, 1, stages)
+    funnel_start, at = _cut_rows(law, at, stages - 1, n)
+    funnel_end, at = _cut_rows(law, at, stages - 1, n)
+    funnel_rate, _ = _cut_rows(law, at, stages - 1, n)
+    control, _errors, finite = funnel_control(
+        t, states, tube[:n], tube[n], kappa, funnel_start, funnel_end, funnel_rate, law[0]
     )
+    return control if finite else None

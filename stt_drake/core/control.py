@@ -141,7 +141,23 @@ class FunnelController:
         return arguments
 
     @cached_property
-    def _packed_kernel(self) -> Callable[..., tuple[np.ndarray, np.ndarray, bool]] | None:
+    def _packed_laws(self) -> dict[int, np.ndarray]:
+        """Per dimension n: :meth:`packed_law`."""
+        return {}
+
+    def packed_law(self, dimension: int) -> np.ndarray:
+        """The compiled funnel_control_packed's `law` for output dimension n = `dimension`:
+        [ERROR_SATURATION, κ (N,), p, q, μ ((N − 1)·n each, row-major)], the
+        :meth:`compiled_arguments` in one array (made once per n)."""
+        law = self._packed_laws.get(dimension)
+        if law is None:
+            kappa, start, end, rate, saturation = self.compiled_arguments(dimension)
+            law = np.concatenate([[saturation], kappa, start.ravel(), end.ravel(), rate.ravel()])
+            self._packed_laws[dimension] = law
+        return law
+
+    @cached_property
+    def _packed_kernel(self) -> Callable[..., np.ndarray | None] | None:
         """The compiled funnel_control_packed, looked up once (read while it is selected)."""
         return backend.compiled("funnel_control_packed")
 
@@ -150,13 +166,14 @@ class FunnelController:
         Drake system's hot path (no ControlEvaluation built). Same value as
         ``evaluate(t, states, tube[:-1], tube[-1]).control``."""
         kernel = self._packed_kernel if backend.using_compiled() else None
-        n = len(tube) - 1
-        arguments = self.compiled_arguments(n)
-        if kernel is not None and len(states) == len(arguments[0]) * n:  # arguments[0]: κ
-            control, _errors, finite = kernel(
-                float(t), np.asarray(states, dtype=float), np.asarray(tube, dtype=float), *arguments
+        if kernel is not None:
+            control = kernel(
+                float(t),
+                np.asarray(states, dtype=float),
+                np.asarray(tube, dtype=float),
+                self.packed_law(len(tube) - 1),
             )
-            if finite:
+            if control is not None:  # None: an input not finite, or lengths that do not fit
                 return control
         return self.evaluate(t, states, tube[:-1], tube[-1]).control
 

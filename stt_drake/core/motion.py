@@ -282,6 +282,20 @@ class MotionTable:
         #: The piecewise-linear tracks of the `sampled` rows, concatenated (its arrays
         #: times, positions, first, last, bounded are what the compiled kernel reads).
         self.samples = _SampleTable([self._motions[j] for j in sampled], dimension)
+        samples = self.samples
+        #: The stacked arrays as the compiled kernel reads them, two arguments, not fourteen
+        #: (a compiled call's cost grows with its argument count): `kernel_layout` (int64)
+        #: = [n, o, v, s, S, oscillating (o), moving (v), sampled (s), first, last,
+        #: bounded (s each)] for o oscillating, v moving, s sampled rows and S samples, and
+        #: `kernel_values` = [center, amplitude (o·n each), angular_frequency (o), phase
+        #: (o·n), start, velocity (v·n each), samples.times (S), samples.positions (S·n)].
+        counts = [dimension, len(oscillating), len(moving), len(sampled), samples.times.size]
+        layout = [counts, self.oscillating, self.moving, self.sampled, samples.first]
+        layout += [samples.last, samples.bounded]
+        self.kernel_layout = np.concatenate(layout).astype(np.int64)
+        values = [self.center, self.amplitude, self.angular_frequency, self.phase, self.start]
+        values += [self.velocity, samples.times, samples.positions]
+        self.kernel_values = np.concatenate(values, axis=None)
         stacked = set(oscillating) | set(moving) | set(sampled)
         self.other = [j for j in range(len(self._motions)) if j not in stacked]
         #: Rows of the obstacles that exist over a span only (:class:`Recorded`).

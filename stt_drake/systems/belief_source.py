@@ -54,23 +54,6 @@ class ObstacleBeliefSource(LeafSystem):
             for j, o in enumerate(self._obstacles)
             if o.sigma_schedule is not None or getattr(o, "covariance_schedule", None) is not None
         ]
-        #: The arguments of the compiled belief_table after the template and t, in its order.
-        self._motion_arrays = (
-            motions.oscillating,
-            motions.center,
-            motions.amplitude,
-            motions.angular_frequency,
-            motions.phase,
-            motions.moving,
-            motions.start,
-            motions.velocity,
-            motions.sampled,
-            motions.samples.times,
-            motions.samples.positions,
-            motions.samples.first,
-            motions.samples.last,
-            motions.samples.bounded,
-        )
         #: Whether some row needs Python after the kernel (another motion model, a schedule).
         self._per_obstacle = bool(motions.other or self._scheduled)
         self.DeclareVectorOutputPort(
@@ -93,20 +76,20 @@ class ObstacleBeliefSource(LeafSystem):
     def belief_vector(self, t: float) -> np.ndarray:
         """The port value at time t (equal to ``obstacle_belief(obstacles, n, t).to_vector()``
         with the active flags of :meth:`stt_drake.core.motion.MotionTable.active`)."""
-        n = self._dimension
+        n, motions = self._dimension, self._motions
         kernel = self._kernel if backend.using_compiled() else None
         if kernel is not None:
-            vector = kernel(self._template, float(t), *self._motion_arrays)
+            vector = kernel(self._template, float(t), motions.kernel_values, motions.kernel_layout)
             if not self._per_obstacle:  # the kernel wrote every row
                 return vector
             table = vector.reshape(self._template.shape)
-            self._motions.fill_others(table[:, :n], t)
+            motions.fill_others(table[:, :n], t)
         else:
             table = self._template.copy()
             vector = table.reshape(-1)
-            table[:, :n] = self._motions.positions(t)
-            if self._motions.bounded.size:  # a recorded track exists over its span only
-                table[:, -1] = self._motions.active(t)
+            table[:, :n] = motions.positions(t)
+            if motions.bounded.size:  # a recorded track exists over its span only
+                table[:, -1] = motions.active(t)
         for j in self._scheduled:  # σ(t)² I, or Σ(t)
             obstacle = self._obstacles[j]
             full = obstacle_covariance(obstacle, t, n)

@@ -392,6 +392,25 @@ def test_controller_rejects_non_finite_input_on_the_compiled_path():
         controller.control_from_tube(0.0, np.zeros(2), np.array([0.0, 0.0, np.inf]))
 
 
+def test_packed_controller_kernel_is_the_unpacked_one_or_none():
+    """funnel_control_packed: the control of funnel_control on the packed law, None where
+    an input is not finite or the lengths do not fit (control_from_tube then falls back)."""
+    controller = FunnelController(kappa=[2.0, 3.0], funnels=[BoxFunnel([1.5, 2.0], 0.5, 0.7)])
+    law = controller.packed_law(2)
+    tube = np.array([0.1, -0.2, 0.6])
+    states = np.array([0.3, 0.1, -0.4, 0.2])
+    control, _errors, finite = kernels.funnel_control(
+        1.2, states, tube[:2], tube[2], *controller.compiled_arguments(2)
+    )
+    assert finite
+    np.testing.assert_array_equal(kernels.funnel_control_packed(1.2, states, tube, law), control)
+    for bad_states, bad_tube in ((np.append(states[:3], np.nan), tube), (states, tube * np.inf)):
+        assert kernels.funnel_control_packed(1.2, bad_states, bad_tube, law) is None
+    assert kernels.funnel_control_packed(np.inf, states, tube, law) is None
+    assert kernels.funnel_control_packed(1.2, states[:3], tube, law) is None  # N·n ≠ 3
+    assert kernels.funnel_control_packed(1.2, states[:2], tube, law) is None  # law of N = 2
+
+
 # --------------------------------------------------------------------------------------
 # Pruning
 # --------------------------------------------------------------------------------------
