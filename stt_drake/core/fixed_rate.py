@@ -213,9 +213,9 @@ def advance(
     certified too (:mod:`stt_drake.core.fixed_rate`, "The radius over a period").
 
     One call of the compiled :func:`stt_drake.core._tube.tube_advance` for n ≤ 3 (unless
-    the numpy path is selected; a belief from a port with every slot active:
-    :func:`stt_drake.core._tube.tube_advance_packed`, which reads the port vector itself,
-    as :func:`advance_port` does without a belief);
+    the numpy path is selected; a belief from a port with every slot active goes to
+    :func:`advance_port`, whose :func:`stt_drake.core._tube.tube_advance_packed` reads the
+    port vector itself);
     the steps below are its reference: :func:`_integrate`,
     :func:`_start_radius`, :func:`_pull_back`, then the end radius and θ_j at the end.
     `belief`: the obstacles (all of them: a fixed-rate tube needs every slot active).
@@ -225,24 +225,12 @@ def advance(
         sub-steps cannot cover is held where they got to, which stays certified).
     """
     center = np.array(center, dtype=float)
-    port = belief.packed  # an isotropic belief from a port: the kernel reads the vector
-    if port is not None and belief.all_active:
-        kernel = backend.compiled("tube_advance_packed", belief.dimension)
-        if kernel is not None:
-            shape = (len(port[1]), belief.dimension)
-            bounds = bounds if bounds is not None else BeliefRateBounds.still(shape[0])
-            return _compiled_advance(
-                kernel,
-                law,
-                center,
-                shape,
-                port,
-                duration,
-                bounds,
-                circulation,
-                radius,
-                max_attempts,
-            )
+    if belief.packed is not None and belief.all_active:  # an isotropic belief from a port
+        task = belief.slot_task
+        bounds = bounds if bounds is not None else BeliefRateBounds.still(task.count)
+        return advance_port(
+            law, center, belief.vector, task, duration, bounds, circulation, radius, max_attempts
+        )
     belief = belief.obstacles()
     bounds = bounds if bounds is not None else BeliefRateBounds.still(belief.count)
     kernel = backend.compiled("tube_advance", belief.dimension)
@@ -288,8 +276,8 @@ def advance_port(
     vector itself (:func:`stt_drake.core._tube.tube_advance_packed`) and no belief is made."""
     n = len(center)
     kernel = backend.compiled("tube_advance_packed", n)
-    if kernel is None:
-        belief = ObstacleBelief.from_port(vector, n, task)
+    if kernel is None:  # the obstacles' arrays (a belief from the port would come back here)
+        belief = ObstacleBelief.from_port(vector, n, task).obstacles()
         return advance(law, center, belief, duration, bounds, circulation, radius, max_attempts)
     return _compiled_advance(
         kernel,
