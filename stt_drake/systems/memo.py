@@ -50,7 +50,7 @@ class LastResult:
     def lookup(self, *inputs: np.ndarray | float | None) -> tuple[tuple[bytes, ...], Any]:
         """(key, result): the key of `inputs` and the stored result when the stored key
         equals it, else None (store the new result with :meth:`store`)."""
-        key = tuple([_key_part(value) for value in inputs])
+        key = self.key(*inputs)
         return key, (self._result if key == self._key else None)
 
     def rekey(self, key: tuple[bytes, ...], new_key: tuple[bytes, ...]) -> bool:
