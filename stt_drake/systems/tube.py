@@ -388,7 +388,7 @@ class ContinuousCentre:
 
     def calc_tube(self, context: Context, output: BasicVector) -> None:
         """The `tube` output [c, r]: the law's exact radius at the current centre."""
-        output.SetFromVector(self._tube._evaluation.Eval(context)[1])
+        output.SetFromVector(self._tube.evaluated(context)[1])
 
     def recovery(self, context: Context) -> np.ndarray:
         """1.0 where q_j(c) ≤ ε_j (an inactive slot reads q = 1 > ε: never recovering)."""
@@ -396,7 +396,7 @@ class ContinuousCentre:
         return (q <= self._tube.task.epsilon) * 1.0
 
     def derivatives(self, context: Context, derivatives: ContinuousState) -> None:
-        derivatives.SetFromVector(self._tube._evaluation.Eval(context)[0].center_rate)
+        derivatives.SetFromVector(self._tube.evaluation(context).center_rate)
 
     def _carry_circulation(self, context: Context, discrete_state: DiscreteValues) -> EventStatus:
         tube = self._tube
