@@ -2,10 +2,12 @@
 derivative evaluation for a Diagram of the omni loop's shape, made of Python systems that
 do no work.
 
-The packaged omni loop's derivative chain is a chain of Python systems: the belief source
-feeds the tube (its centre is continuous state), the tube the controller, the controller
-the drive interface and that the plant (continuous state). :func:`bench_drake_floor`
-builds that chain with the same port sizes (50 obstacle slots in 2D), each system only
+The omni loop's derivative chain: the belief source feeds the tube (its centre is
+continuous state), the tube the controller, the controller the drive interface and that the
+plant (continuous state). :func:`bench_drake_floor` builds that chain as five Python
+systems, the shape the loop had when the floor was made (its drive and plant are Drake's
+symbolic systems now, so the floor is a fixed reference, a little above the loop's own
+framework cost), with the same port sizes (50 obstacle slots in 2D), each system only
 evaluating its input and writing a constant, and simulates it with the scenarios'
 integrator (Runge-Kutta 3) at a fixed step near their mean step, so a second holds about
 as many derivative evaluations as the real loop. The real loop's wall time per derivative

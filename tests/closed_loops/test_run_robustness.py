@@ -20,13 +20,13 @@ from stt_drake.assembly import load_scenario
 from stt_drake.cli.main import main
 from stt_drake.config import ScenarioError, validate
 from stt_drake.run import simulate
+from stt_drake.systems.controller import STTController
 from stt_drake.systems.monitor import (
     DEFAULT_MAX_STEPS_PER_SECOND,
     WATCHDOG_WINDOW_STEPS,
     StepRateWatchdog,
     step_rate_limit,
 )
-from stt_drake.systems.plants.omni import OmniKinematics
 
 ROOT = Path(__file__).resolve().parents[2]
 CASE1 = ROOT / "diagrams" / "omni_hardware_case1.yaml"
@@ -147,24 +147,26 @@ def test_scenario_step_limit_stops_the_run_through_the_cli(tmp_path, capsys):
 
 
 def _omni_fails_after(monkeypatch: pytest.MonkeyPatch, t_fail: float, how: str) -> None:
-    """Make the omni base's derivative misbehave for t > t_fail: `chatter` (a ±1e8 m/s
-    bang-bang velocity switching every ~0.3 µs: error control shrinks the steps to ~1e-8 s;
-    it calms down after CHATTER_EVALUATIONS evaluations, so that a broken watchdog fails the
-    test instead of hanging it) or `nan` (the state goes NaN: the controller refuses it)."""
-    derivatives_of = OmniKinematics.DoCalcTimeDerivatives
+    """Make the velocity command the omni base receives misbehave for t > t_fail (the
+    controller is the loop's Python system; the base is Drake primitives): `chatter` (a
+    ±1e8 m/s bang-bang command switching every ~0.3 µs: error control shrinks the steps to
+    ~1e-8 s; it calms down after CHATTER_EVALUATIONS evaluations, so that a broken watchdog
+    fails the test instead of hanging it) or `nan` (the state goes NaN: the controller
+    refuses it)."""
+    control_of = STTController._calc_control
     chattered = [0]
 
-    def misbehaving(self, context, derivatives):
-        derivatives_of(self, context, derivatives)
+    def misbehaving(self, context, output):
+        control_of(self, context, output)
         t = context.get_time()
         if t > t_fail and how == "nan":
-            derivatives.get_mutable_vector().SetFromVector([math.nan, 0.0, 0.0])
+            output.SetFromVector([math.nan, 0.0])
         elif t > t_fail and chattered[0] < CHATTER_EVALUATIONS:
             chattered[0] += 1
             velocity = 1e8 * math.copysign(1.0, math.sin(1e7 * t))
-            derivatives.get_mutable_vector().SetFromVector([velocity, 0.0, 0.0])
+            output.SetFromVector([velocity, 0.0])
 
-    monkeypatch.setattr(OmniKinematics, "DoCalcTimeDerivatives", misbehaving)
+    monkeypatch.setattr(STTController, "_calc_control", misbehaving)
 
 
 #: How many derivative evaluations the chattering plant of the tests lasts (~20 s of wall
@@ -222,26 +224,27 @@ def test_an_integrator_failure_is_caught_and_named(monkeypatch):
 @pytest.mark.slow
 def test_exceptions_inside_advance_to_end_the_cli_run_cleanly(tmp_path):
     """Two real exceptions raised inside AdvanceTo, in a separate `stt-drake run` process:
-    a plant derivative raising ValueError at t > 1 s, and a NaN state that makes the STT
-    controller raise. Exit 1, outputs written up to the stop, no traceback."""
+    the controller's output raising ValueError at t > 1 s, and a NaN command that makes
+    the state NaN, which the STT controller then refuses. Exit 1, outputs written up to the
+    stop, no traceback."""
     scenario = _case1(tmp_path, 3.0)
     script = textwrap.dedent(
         """
         import math, sys
         from stt_drake.cli.main import main
-        from stt_drake.systems.plants.omni import OmniKinematics
+        from stt_drake.systems.controller import STTController
 
-        derivatives_of = OmniKinematics.DoCalcTimeDerivatives
+        control_of = STTController._calc_control
         how = sys.argv[1]
 
-        def failing(self, context, derivatives):
-            derivatives_of(self, context, derivatives)
+        def failing(self, context, output):
+            control_of(self, context, output)
             if context.get_time() > 1.0:
                 if how == "raise":
                     raise ValueError("wheel encoder lost")
-                derivatives.get_mutable_vector().SetFromVector([math.nan, 0.0, 0.0])
+                output.SetFromVector([math.nan, 0.0])
 
-        OmniKinematics.DoCalcTimeDerivatives = failing
+        STTController._calc_control = failing
         sys.exit(main(["run", sys.argv[2], "--out", sys.argv[3], "--no-figures"]))
         """
     )

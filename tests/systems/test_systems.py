@@ -951,15 +951,43 @@ def test_omni_outputs_do_not_feed_through():
             )
 
 
-def test_omni_position_is_read_without_python():
-    """Only the kinematics (the state and its derivatives) are Python: the position the
-    controller and the monitor read at every step comes from a compiled MatrixGain."""
+def test_omni_base_and_drive_call_no_python():
+    """The base and its drive are Drake primitives (evaluated in C++): no derivative
+    evaluation or output of theirs calls Python."""
     robot = OmniRobot(NOMINAL_WHEEL, NOMINAL_BASE, np.array([0.5, -0.5]), initial_heading=0.3)
-    kinds = {system.get_name(): type(system).__module__ for system in robot.GetSystems()}
-    assert kinds == {
-        "kinematics": "stt_drake.systems.plants.omni",
-        "position": "pydrake.systems.primitives",
-    }
+    drive = OmniDriveInterface(NOMINAL_WHEEL, NOMINAL_BASE, HEADING_GAIN)
+    for diagram, names in (
+        (robot, {"inputs", "kinematics", "position"}),
+        (drive, {"inputs", "wheels"}),
+    ):
+        kinds = {system.get_name(): type(system).__module__ for system in diagram.GetSystems()}
+        assert set(kinds) == names
+        assert set(kinds.values()) == {"pydrake.systems.primitives"}
+
+
+def test_omni_state_is_the_displacement_from_the_initial_pose():
+    """The base's state is the displacement from its initial pose (its output adds the pose
+    back): its derivative at pose p is the one at p from a zero start. The drive's one
+    state (a SymbolicVectorSystem needs one in a continuous Diagram) never changes."""
+    start = np.array([2.0, -1.0, 2.5])
+    pose = np.array([0.3, -0.2, 0.7])
+    command = np.array([0.4, -0.25])
+    expected, *_ = omni_derivatives(NOMINAL_WHEEL, NOMINAL_BASE, pose, command)
+    robot = OmniRobot(NOMINAL_WHEEL, NOMINAL_BASE, start[:2], initial_heading=start[2])
+    context = robot.CreateDefaultContext()
+    np.testing.assert_array_equal(robot.GetOutputPort("pose").Eval(context), start)
+    context.SetContinuousState(pose - start)
+    np.testing.assert_allclose(robot.GetOutputPort("pose").Eval(context), pose, atol=1e-15)
+    drive = OmniDriveInterface(NOMINAL_WHEEL, NOMINAL_BASE, HEADING_GAIN)
+    drive_context = drive.CreateDefaultContext()
+    drive.GetInputPort("velocity_command").FixValue(drive_context, command)
+    drive.GetInputPort("pose").FixValue(drive_context, robot.GetOutputPort("pose").Eval(context))
+    wheel_speeds = drive.GetOutputPort("wheel_speeds").Eval(drive_context)
+    robot.GetInputPort("wheel_speeds").FixValue(context, wheel_speeds)
+    robot.GetInputPort("disturbance").FixValue(context, np.zeros(2))
+    derivatives = robot.EvalTimeDerivatives(context).CopyToVector()
+    np.testing.assert_allclose(derivatives, expected, rtol=1e-14, atol=1e-15)
+    assert drive.EvalTimeDerivatives(drive_context).CopyToVector().tolist() == [0.0]
 
 
 def test_wheel_matrix_rows():

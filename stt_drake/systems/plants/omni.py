@@ -12,19 +12,10 @@ Eq. (1) that the controller must handle without knowing either.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
-from pydrake.systems.framework import (
-    BasicVector,
-    Context,
-    ContinuousState,
-    ContinuousStateIndex,
-    Diagram,
-    DiagramBuilder,
-    LeafSystem,
-)
-from pydrake.systems.primitives import MatrixGain
+from pydrake.symbolic import Expression, MakeVectorVariable, atan2, cos, sin
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import MatrixGain, Multiplexer, SymbolicVectorSystem
 
 #: Wheel mounting angles around the base (rad).
 WHEEL_ANGLES = np.array([0.0, 2.0 * np.pi / 3.0, 4.0 * np.pi / 3.0])
@@ -38,59 +29,39 @@ def wheel_matrix(wheel_radius: float, base_radius: float) -> np.ndarray:
     )
 
 
-def _rows_times(
-    rows: tuple[tuple[float, ...], ...], x: float, y: float, z: float
-) -> tuple[float, float, float]:
-    """The 3 × 3 matrix `rows` times (x, y, z) in Python floats: for 3-vectors, cheaper than
-    numpy's per-call overhead (the plant's and the drive interface's hot paths)."""
-    (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = rows
-    return a0 * x + a1 * y + a2 * z, b0 * x + b1 * y + b2 * z, c0 * x + c1 * y + c2 * z
+def _times(matrix: np.ndarray, values: list) -> list[Expression]:
+    """`matrix` (floats) times symbolic `values`, in Python arithmetic: numpy's object-dtype
+    operations report the floating-point flags Drake's symbolic arithmetic leaves set, as
+    an 'invalid value' warning (an error under the tests' warning filter)."""
+    return [
+        sum(weight * value for weight, value in zip(row, values, strict=True))
+        for row in matrix.tolist()
+    ]
 
 
-def rotation(heading: float) -> np.ndarray:
-    """2D rotation from body to world frame."""
-    c, s = np.cos(heading), np.sin(heading)
-    return np.array([[c, -s], [s, c]])
-
-
-class OmniKinematics(LeafSystem):
-    """The true kinematics: state [x, y, ψ]; inputs `wheel_speeds` (3, rad/s) and
-    `disturbance` (2, world-frame velocity, m/s); output `pose` = (x, y, ψ)."""
-
-    def __init__(
-        self,
-        wheel_radius: float,
-        base_radius: float,
-        initial_position: np.ndarray,
-        initial_heading: float = 0.0,
-    ) -> None:
-        super().__init__()
-        twist_from_wheels = np.linalg.inv(wheel_matrix(wheel_radius, base_radius))
-        self._twist_rows = tuple(tuple(row) for row in twist_from_wheels.tolist())
-        self.DeclareContinuousState(BasicVector(np.append(initial_position, initial_heading)))
-        self._wheel_port = self.DeclareVectorInputPort("wheel_speeds", 3)
-        self._disturbance_port = self.DeclareVectorInputPort("disturbance", 2)
-        self.DeclareStateOutputPort("pose", ContinuousStateIndex(0))
-
-    def DoCalcTimeDerivatives(  # noqa: N802 (Drake API)
-        self, context: Context, derivatives: ContinuousState
-    ) -> None:
-        # Scalar Python arithmetic on 3-vectors, and as few pybind calls as can be: cheaper
-        # than numpy's per-call overhead.
-        heading = context.get_continuous_state_vector()[2]
-        v_x, v_y, yaw_rate = _rows_times(self._twist_rows, *self._wheel_port.Eval(context).tolist())
-        d_x, d_y = self._disturbance_port.Eval(context).tolist()
-        c, s = math.cos(heading), math.sin(heading)  # world velocity = R(ψ) body velocity
-        derivatives.SetFromVector([c * v_x - s * v_y + d_x, s * v_x + c * v_y + d_y, yaw_rate])
+def _inputs_of(
+    builder: DiagramBuilder, sizes: list[int], names: list[str]
+) -> tuple[Multiplexer, list[np.ndarray]]:
+    """A `Multiplexer` named "inputs" of vector inputs exported as `names`, and a vector of
+    symbolic variables for each (a SymbolicVectorSystem has one input port)."""
+    inputs = builder.AddNamedSystem("inputs", Multiplexer(sizes))
+    for index, name in enumerate(names):
+        builder.ExportInput(inputs.get_input_port(index), name)
+    return inputs, [MakeVectorVariable(size, name) for size, name in zip(sizes, names, strict=True)]
 
 
 class OmniRobot(Diagram):
-    """State [x, y, ψ]; inputs `wheel_speeds` (3, rad/s) and `disturbance` (2, world-frame
-    velocity, m/s); outputs `output` = y = (x, y), `plant_state` = x_1 = (x, y) (the stage
-    states the controller measures) and `pose` = (x, y, ψ).
+    """The true kinematics: state [x, y, ψ] less the initial pose; inputs `wheel_speeds` (3,
+    rad/s) and `disturbance` (2, world-frame velocity, m/s); outputs `output` = y = (x, y),
+    `plant_state` = x_1 = (x, y) (the stage states the controller measures) and `pose` =
+    (x, y, ψ).
 
-    :class:`OmniKinematics` holds the state; (x, y) is selected from its pose by Drake's
-    compiled `MatrixGain`, so reading the position never calls Python."""
+    Every part is a Drake primitive evaluated in C++, so a derivative evaluation or a reading
+    of the position never calls Python: a `Multiplexer` of the two inputs, the kinematics
+    ẋ = R(ψ) T ω + w (T = M⁻¹ of the true wheels) as a `SymbolicVectorSystem` named
+    "kinematics", and a `MatrixGain` selecting (x, y). Its state is the displacement from the
+    initial pose (a SymbolicVectorSystem's default state is zero; its output adds the pose
+    back), so the default context starts at the initial pose."""
 
     def __init__(
         self,
@@ -101,25 +72,44 @@ class OmniRobot(Diagram):
     ) -> None:
         super().__init__()
         builder = DiagramBuilder()
+        inputs, (wheel_speeds, disturbance) = _inputs_of(
+            builder, [3, 2], ["wheel_speeds", "disturbance"]
+        )
+        displacement = MakeVectorVariable(3, "displacement")
+        start = [*np.asarray(initial_position, dtype=float).tolist(), float(initial_heading)]
+        pose = [moved + value for moved, value in zip(displacement, start, strict=True)]
+        twist_from_wheels = np.linalg.inv(wheel_matrix(wheel_radius, base_radius))
+        v_x, v_y, yaw_rate = _times(twist_from_wheels, list(wheel_speeds))
+        c, s = cos(pose[2]), sin(pose[2])  # world velocity = R(ψ) body velocity
+        rate = [c * v_x - s * v_y + disturbance[0], s * v_x + c * v_y + disturbance[1], yaw_rate]
         kinematics = builder.AddNamedSystem(
             "kinematics",
-            OmniKinematics(wheel_radius, base_radius, initial_position, initial_heading),
+            SymbolicVectorSystem(
+                state=displacement,
+                input=np.concatenate([wheel_speeds, disturbance]),
+                dynamics=rate,
+                output=pose,
+            ),
         )
         position = builder.AddNamedSystem("position", MatrixGain(np.eye(2, 3)))
-        pose = kinematics.GetOutputPort("pose")
-        builder.Connect(pose, position.get_input_port())
-        for name in ("wheel_speeds", "disturbance"):
-            builder.ExportInput(kinematics.GetInputPort(name), name)
+        builder.Connect(inputs.get_output_port(), kinematics.get_input_port())
+        builder.Connect(kinematics.get_output_port(), position.get_input_port())
         builder.ExportOutput(position.get_output_port(), "output")
         builder.ExportOutput(position.get_output_port(), "plant_state")
-        builder.ExportOutput(pose, "pose")
+        builder.ExportOutput(kinematics.get_output_port(), "pose")
         builder.BuildInto(self)
 
 
-class OmniDriveInterface(LeafSystem):
+class OmniDriveInterface(Diagram):
     """The base's twist interface: inputs `velocity_command` (2, world frame, m/s) and
     `pose` (3); output `wheel_speeds` (3) from the nominal kinematics, with the heading held
-    at `heading_reference` by ψ̇ = −heading_gain·wrap(ψ − heading_reference)."""
+    at `heading_reference` by ψ̇ = −heading_gain·wrap(ψ − heading_reference).
+
+    Drake primitives evaluated in C++: a `Multiplexer` of the inputs and the map as a
+    `SymbolicVectorSystem` named "wheels". That system carries one constant state (its
+    derivative is 0): Drake asks every subsystem of a continuous Diagram for its time
+    derivatives, and a SymbolicVectorSystem without dynamics aborts the process there (a
+    DRAKE_DEMAND, not an exception)."""
 
     def __init__(
         self,
@@ -129,21 +119,26 @@ class OmniDriveInterface(LeafSystem):
         heading_reference: float = 0.0,
     ) -> None:
         super().__init__()
-        self._wheels_from_twist = wheel_matrix(nominal_wheel_radius, nominal_base_radius)
-        self._wheel_rows = tuple(tuple(row) for row in self._wheels_from_twist.tolist())
-        self._heading_gain = heading_gain
-        self._heading_reference = heading_reference
-        self._command_port = self.DeclareVectorInputPort("velocity_command", 2)
-        self._pose_port = self.DeclareVectorInputPort("pose", 3)
-        self.DeclareVectorOutputPort("wheel_speeds", 3, self._calc_wheel_speeds)
-
-    def _calc_wheel_speeds(self, context: Context, output: BasicVector) -> None:
-        # Scalar Python arithmetic on Python floats: cheaper than numpy's per-call overhead.
-        u_x, u_y = self._command_port.Eval(context).tolist()
-        heading = self._pose_port.Eval(context).tolist()[2]
-        difference = heading - self._heading_reference
-        heading_error = math.atan2(math.sin(difference), math.cos(difference))  # to (−π, π]
-        c, s = math.cos(heading), math.sin(heading)  # body velocity = R(ψ)ᵀ command
-        v_x, v_y = c * u_x + s * u_y, -s * u_x + c * u_y
-        yaw_rate = -self._heading_gain * heading_error
-        output.SetFromVector(_rows_times(self._wheel_rows, v_x, v_y, yaw_rate))
+        builder = DiagramBuilder()
+        inputs, (command, pose) = _inputs_of(builder, [2, 3], ["velocity_command", "pose"])
+        difference = pose[2] - heading_reference
+        heading_error = atan2(sin(difference), cos(difference))  # wrapped to (−π, π]
+        c, s = cos(pose[2]), sin(pose[2])  # body velocity = R(ψ)ᵀ command
+        twist = [
+            c * command[0] + s * command[1],
+            -s * command[0] + c * command[1],
+            -heading_gain * heading_error,
+        ]
+        constant = MakeVectorVariable(1, "constant")
+        wheels = builder.AddNamedSystem(
+            "wheels",
+            SymbolicVectorSystem(
+                state=constant,
+                input=np.concatenate([command, pose]),
+                dynamics=[Expression(0.0)],
+                output=_times(wheel_matrix(nominal_wheel_radius, nominal_base_radius), twist),
+            ),
+        )
+        builder.Connect(inputs.get_output_port(), wheels.get_input_port())
+        builder.ExportOutput(wheels.get_output_port(), "wheel_speeds")
+        builder.BuildInto(self)
