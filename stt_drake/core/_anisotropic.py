@@ -436,7 +436,7 @@ def _solve_gap(
     Newton's iteration on √J from `start` if that is on the side (else from the middle of
     the bracket), inside a bracket [0, x] found by doubling (√J grows with |x| on each
     side); stops after a step below :data:`_GAP_STEP`·(1 + |x|) (error ~1e-6: the start
-    needs no more; a tighter stop cost ~5 more J evaluations per quantile, ~6 % of it).
+    needs no more; a tighter stop cost ~5 more J evaluations per quantile, ~4 % of it).
     """
     if goal <= 0.0:
         return 0.0
