@@ -316,10 +316,10 @@ class SpatiotemporalTube(LeafSystem):
         theta: np.ndarray,
         axes: np.ndarray,
         keep: bool = False,
-    ) -> np.ndarray:
+    ) -> None:
         """Write the circulation axes after this step (:func:`carry_circulation`) at
         `center` with θ_j evaluated there, from the `axes` held in `context`
-        (:meth:`circulation`), and return them (slots, 3). With `keep` (`center` is the
+        (:meth:`circulation`). With `keep` (`center` is the
         centre in `context`), the memoised evaluation there stands for the carried axes too
         (:meth:`keep_evaluation`)."""
         vector = self._belief_port.Eval(context)
@@ -330,7 +330,6 @@ class SpatiotemporalTube(LeafSystem):
         discrete_state.set_value(self._circulation_index, carried.ravel())
         if keep:
             self.keep_evaluation(context, center, vector, axes, carried)
-        return carried
 
     def keep_evaluation(
         self,
