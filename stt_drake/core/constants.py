@@ -90,6 +90,15 @@ ANISOTROPIC_QUANTILE_RTOL = 1e-5
 #: Largest number of iterations of that quantile.
 ANISOTROPIC_QUANTILE_MAX_ITERATIONS = 60
 
+#: A full covariance Σ is σ²I to rounding, and the tube law takes the noncentral χ law of
+#: Proposition 3.1 with σ² = tr Σ/n instead of the contour integral, when every entry of
+#: Σ − σ²I is within this share of Σ's largest diagonal entry (dimensionless). Then
+#: ‖Σ/σ² − I‖_F ≤ n·ISOTROPIC_RTOL/(1 − ISOTROPIC_RTOL), so by the total-variation bound
+#: TV(N(μ, Σ₁), N(μ, Σ₂)) ≤ (3/2)‖Σ₁^{-1/2}Σ₂Σ₁^{-1/2} − I‖_F (Devroye, Mehrabian & Reddad
+#: 2018) every probability the law reads moves by less than 5e-12 (n ≤ 3). A Kalman
+#: tracker with isotropic noises keeps its position covariance σ²I to ~1e-15 (rounding).
+ISOTROPIC_RTOL = 1e-12
+
 #: Below this |z| the saddle-point value uses the series of log(1 − z) + z/(1 − z)
 #: (dimensionless).
 SERIES_BELOW = 0.1
