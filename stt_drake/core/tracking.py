@@ -39,6 +39,7 @@ The functions take and return explicit arrays, for m slots: ``state`` (m, 2n),
 from __future__ import annotations
 
 import importlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -494,7 +495,7 @@ class KalmanTracker:
         of `previous` by `weight` (:func:`blend_beliefs`; ≥ 1: no blend). One call of the
         compiled :func:`stt_drake.core._tracking.track_belief` for n ≤ 3 (unless the numpy
         path is selected), else these numpy functions."""
-        kernel = backend.compiled("track_belief", self.dimension)
+        kernel = self._belief_kernel if backend.using_compiled() else None
         if kernel is None:
             belief = self.belief(self.unpack(tracks), t)
             if weight < 1.0:
@@ -510,6 +511,12 @@ class KalmanTracker:
             scale_column,
             self.dimension,
         )
+
+    @cached_property
+    def _belief_kernel(self) -> Callable[..., np.ndarray] | None:
+        """The compiled track_belief for this dimension, looked up once (read while it is
+        selected; None where it is not compiled)."""
+        return backend.compiled("track_belief", self.dimension)
 
     @cached_property
     def _belief_constants(self) -> tuple[tuple[int, int], float, int]:

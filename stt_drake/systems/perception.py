@@ -253,12 +253,14 @@ class ObstacleTracker(LeafSystem):
         self._detections_port = self.DeclareVectorInputPort("detections", detection_size(count, n))
         self._tracks = self.DeclareDiscreteState(tracker.empty(count).to_vector())
         self._updates = self.DeclareDiscreteState(np.zeros(count))
-        # The tracks before the last update, and its time (the blend's start).
-        self._previous = self.DeclareDiscreteState(tracker.empty(count).to_vector())
+        # The blend's start: the last update's time, then the tracks before it (one group:
+        # the belief, evaluated at every step, reads it with one lookup).
+        self._blend_start = self.DeclareDiscreteState(
+            np.concatenate([[-np.inf], tracker.empty(count).to_vector()])
+        )
         stats = np.zeros((count, CONSISTENCY_FIELDS))
         stats[:, [3, 5]] = np.nan  # no event yet, not failing
         self._consistency = self.DeclareDiscreteState(stats.ravel())
-        self._update_time = self.DeclareDiscreteState([-np.inf])
         self.DeclarePeriodicDiscreteUpdateEvent(period, offset, self._update)
         self.DeclareStateOutputPort("belief_updates", self._updates)
         self.DeclareStateOutputPort("tracks", self._tracks)
@@ -297,18 +299,18 @@ class ObstacleTracker(LeafSystem):
         discrete_state.set_value(self._tracks, vector)
         counts = context.get_discrete_state(self._updates).value() + changed
         discrete_state.set_value(self._updates, counts)
-        discrete_state.set_value(self._previous, before)
-        discrete_state.set_value(self._update_time, [context.get_time()])
+        discrete_state.set_value(self._blend_start, np.concatenate([[context.get_time()], before]))
 
     def belief_vector(self, context: Context) -> np.ndarray:
         """The published belief at the context time, as the `obstacle_belief` port vector
         (blended for `blend_time` after an update)."""
         t = context.get_time()
         state = context.get_discrete_state()  # once: each group lookup from the context costs
-        elapsed = t - state.get_value(self._update_time).item(0)  # a Python float, not numpy's
+        blend_start = state.get_value(self._blend_start)
+        elapsed = t - blend_start.item(0)  # a Python float, not numpy's
         weight = elapsed / self._blend_time if elapsed < self._blend_time else 1.0
         return self._tracker.belief_vector(
-            state.get_value(self._tracks), state.get_value(self._previous), t, weight
+            state.get_value(self._tracks), blend_start[1:], t, weight
         )
 
     def _calc_belief(self, context: Context, output: BasicVector) -> None:
