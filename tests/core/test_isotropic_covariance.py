@@ -102,7 +102,5 @@ def test_law_terms_match_the_contour_integral_within_the_tolerance(n, compiled):
                 contour = anisotropic.quantile_distance(
                     center, belief.mean[j], covariance[j], belief.radius[j], belief.epsilon[j]
                 )
-                assert evaluation.quantile_distance[j] == pytest.approx(
-                    contour, rel=1e-9, abs=1e-9
-                )
+                assert evaluation.quantile_distance[j] == pytest.approx(contour, rel=1e-9, abs=1e-9)
     assert compared > 20  # q was computed, not only bounded
