@@ -56,6 +56,7 @@ KERNELS: dict[str, tuple[int, ...] | None] = {
     "chi_isf_array": COMPILED_DIMENSIONS,  # probability.noncentral_chi_isf
     "tube_step": COMPILED_DIMENSIONS,  # tube.TubeLaw.evaluate / switching_gains
     "tube_step_packed": COMPILED_DIMENSIONS,  # tube.TubeLaw.evaluate (a belief from a port)
+    "tube_step_obstacles": COMPILED_DIMENSIONS,  # tube.TubeLaw.evaluate (σ_j arrays, plain)
     "tube_advance": COMPILED_DIMENSIONS,  # tube.TubeLaw.advance
     "tube_advance_packed": COMPILED_DIMENSIONS,  # tube.TubeLaw.advance (a belief from a port)
     "invariant_margins": COMPILED_DIMENSIONS,  # invariants.evaluate_invariants
@@ -84,6 +85,7 @@ KERNEL_MODULES: dict[str, str] = {
     "chi_isf_array": "_kernels",
     "tube_step": "_tube",
     "tube_step_packed": "_tube",
+    "tube_step_obstacles": "_tube",
     "tube_advance": "_tube",
     "tube_advance_packed": "_tube",
     "invariant_margins": "_kernels",
@@ -135,6 +137,7 @@ SIGNATURES: dict[str, tuple[str, ...]] = {
     "chi_isf_array": (_signature(_VECTOR, _VECTOR, "int64"),),
     "tube_step": (_signature(_VECTOR, _MATRIX, *[_VECTOR] * 8, _MATRIX, _VECTOR, _VECTOR),),
     "tube_step_packed": (_PORT_STEP,),
+    "tube_step_obstacles": (_signature(_VECTOR, _MATRIX, *[_VECTOR] * 5),),
     "exact_tube_step_packed": (_PORT_STEP,),
     "tube_advance": (_signature(_VECTOR, _MATRIX, *[_VECTOR] * 8, *_ADVANCE_TAIL),),
     "tube_advance_packed": (_signature(_VECTOR, _VECTOR, _MATRIX, *[_VECTOR] * 4, *_ADVANCE_TAIL),),

@@ -54,9 +54,9 @@ the compiled kernels or that reference (:meth:`TubeLaw.evaluate`).
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 
@@ -250,13 +250,12 @@ class TubeLaw:
             )
         return k2, k3, constants[mode]
 
-    def _kernel_call(
-        self, name: str, n: int, count: int, mode: str
-    ) -> tuple[Callable[..., tuple], np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    def _kernel_call(self, name: str, n: int, count: int, mode: str) -> tuple[Any, ...] | None:
         """(compiled kernel `name`, k2, k3, constants, empty circulation (0, n)) for `count`
         obstacles in pruning `mode` (full covariances, the "exact_" kernels, prune with
         their own bound: :func:`_kernel_mode`), or None where the numpy reference runs
-        (:func:`stt_drake.core.backend.compiled`). Looked up once per law and key, not per
+        (:func:`stt_drake.core.backend.compiled`); for "tube_step_obstacles", (kernel,
+        [len(k2), len(k3), k2, k3, constants]). Looked up once per law and key, not per
         evaluation: the lookup, the gains' checks and the arrays cost more than the kernel's
         pruned obstacles (:meth:`with_target` starts the law's table afresh)."""
         if not backend.using_compiled():  # checked every call: tests switch per block
@@ -269,7 +268,11 @@ class TubeLaw:
             if kernel is None:
                 return None
             constants_mode = _kernel_mode(name.startswith("exact"), mode)
-            call = (kernel, *self.kernel_arguments(count, constants_mode), np.empty((0, n)))
+            k2, k3, constants = self.kernel_arguments(count, constants_mode)
+            if name == "tube_step_obstacles":  # the gains and constants in one array
+                call = (kernel, np.concatenate([[k2.size, k3.size], k2, k3, constants]))
+            else:
+                call = (kernel, k2, k3, constants, np.empty((0, n)))
             calls[key] = call
         return call
 
@@ -379,6 +382,13 @@ class TubeLaw:
         """:meth:`evaluate` on the obstacles' arrays (one per obstacle, not per slot)."""
         count, n = belief.mean.shape
         full = belief.covariance is not None
+        if not full and circulation is None and inflation is None:
+            call = self._kernel_call("tube_step_obstacles", n, count, mode)
+            if call is not None:  # 7 arguments, not tube_step's 13: dispatch costs per argument
+                kernel, law = call
+                mean, sigma = belief.mean, belief.sigma
+                out = kernel(center, mean, sigma, belief.radius, belief.epsilon, belief.p_d, law)
+                return evaluation_of(out, n)
         if inflation is not None:
             check_continuous_for_covariance(full, True, "inflation", inflation, "None")
         call = self._kernel_call("exact_tube_step" if full else "tube_step", n, count, mode)
