@@ -541,6 +541,64 @@ def chi_isf_array(eps: np.ndarray, a: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
+@njit(**_JIT)
+def level_set_offset(threshold: float, level: float, n: int) -> float:
+    """The a ≥ 0 with P(‖Z‖ ≥ `threshold`) = `level` for Z ~ N(a e, I_n), n ∈ {1, 2, 3}: the
+    level-set distance of :func:`stt_drake.core.probability.level_set_radius` for σ = 1;
+    0 where a = 0 already gives at least `level`, +inf where no a reaches it.
+
+    The tail grows with a: by the divergence theorem ∂P(‖Z‖ ≥ b)/∂a = f(b)·R with f the
+    density of ‖Z‖ at b and R = I_{n/2}(ab)/I_{n/2−1}(ab) ≥ 0, the mean of the cosine on the
+    sphere of radius b, which :func:`chi_sf_pdf`'s d ln f/ds = (n − 1)/b − b + aR gives.
+    Newton's iteration from a = b + Φ⁻¹(level) (the root where the tail is Φ(a − b)), inside
+    the numpy function's bracket [0, upper] and shrinking it, bisecting a step that leaves
+    it; for level > ½ the residual is (1 − level) − cdf, for that tail's relative accuracy.
+    """
+    if math.isnan(threshold) or math.isnan(level):
+        return math.nan
+    if chi_sf(threshold, 0.0, n) >= level:
+        return 0.0
+    upper = threshold + math.sqrt(n) + 10.0
+    for _ in range(60):
+        if chi_sf(threshold, upper, n) >= level:
+            break
+        upper *= 2.0
+    else:
+        return math.inf
+    lo, hi = 0.0, upper
+    a = threshold + ndtri(level)
+    if not (a > lo and a < hi):
+        a = 0.5 * (lo + hi)
+    use_cdf = level > 0.5
+    for _ in range(CHI_QUANTILE_MAX_ITERATIONS):
+        sf, cdf, pdf, dlog = chi_sf_pdf(threshold, a, n)
+        g = (1.0 - level) - cdf if use_cdf else sf - level
+        if g > 0.0:
+            hi = a
+        elif g < 0.0:
+            lo = a
+        else:
+            return a
+        slope = pdf * (dlog - (n - 1) / threshold + threshold) / a  # threshold > 0 here
+        new = a - g / slope if slope > 0.0 else math.nan
+        if not (new > lo and new < hi):
+            new = 0.5 * (lo + hi)
+        if abs(new - a) <= CHI_QUANTILE_RTOL * (1.0 + a) or not hi - lo > 4e-16 * hi:
+            return new
+        a = new
+    return a
+
+
+@njit(**_JIT)
+def level_set_offsets(thresholds: np.ndarray, level: float, n: int) -> np.ndarray:
+    """:func:`level_set_offset` for each of `thresholds` at one `level` (the guide's table of
+    level-set radii over β = r_s/σ, :class:`stt_drake.core.guide.LevelSetRadii`)."""
+    out = np.empty(thresholds.shape[0])
+    for i in range(thresholds.shape[0]):
+        out[i] = level_set_offset(thresholds[i], level, n)
+    return out
+
+
 # --------------------------------------------------------------------------- geometry
 @njit(**{**_JIT, "inline": "always"})  # per obstacle in the loops: no call
 def _distance(point: np.ndarray, mean: np.ndarray, j: int) -> float:

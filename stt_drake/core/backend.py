@@ -54,6 +54,7 @@ COMPILED_DIMENSIONS = (1, 2, 3)
 KERNELS: dict[str, tuple[int, ...] | None] = {
     "chi_sf_array": COMPILED_DIMENSIONS,  # probability.noncentral_chi_sf
     "chi_isf_array": COMPILED_DIMENSIONS,  # probability.noncentral_chi_isf
+    "level_set_offsets": COMPILED_DIMENSIONS,  # probability.level_set_radius (guide's table)
     "tube_step": COMPILED_DIMENSIONS,  # tube.TubeLaw.evaluate / switching_gains
     "tube_step_packed": COMPILED_DIMENSIONS,  # tube.TubeLaw.evaluate (a belief from a port)
     "tube_step_obstacles": COMPILED_DIMENSIONS,  # tube.TubeLaw.evaluate (σ_j arrays, plain)
@@ -83,6 +84,7 @@ KERNELS: dict[str, tuple[int, ...] | None] = {
 KERNEL_MODULES: dict[str, str] = {
     "chi_sf_array": "_kernels",
     "chi_isf_array": "_kernels",
+    "level_set_offsets": "_kernels",
     "tube_step": "_tube",
     "tube_step_packed": "_tube",
     "tube_step_obstacles": "_tube",
@@ -135,6 +137,7 @@ _ADVANCE_TAIL = (_MATRIX, _VECTOR, "float64", "float64", "float64", "int64")
 SIGNATURES: dict[str, tuple[str, ...]] = {
     "chi_sf_array": (_signature(_VECTOR, _VECTOR, "int64"),),
     "chi_isf_array": (_signature(_VECTOR, _VECTOR, "int64"),),
+    "level_set_offsets": (_signature(_VECTOR, "float64", "int64"),),
     "tube_step": (_signature(_VECTOR, _MATRIX, *[_VECTOR] * 8, _MATRIX, _VECTOR, _VECTOR),),
     "tube_step_packed": (_PORT_STEP,),
     "tube_step_obstacles": (_signature(_VECTOR, _MATRIX, *[_VECTOR] * 5),),

@@ -113,7 +113,8 @@ class GuideSettings:
 class LevelSetRadii:
     """The radius D of the ball {x : q̂(x) < level} for N(μ, σ² I) and a ball of radius r_s,
     for many (σ, r_s, level) at once: D = σ·ρ(r_s/σ; level), with ρ computed exactly
-    (:func:`stt_drake.core.probability.level_set_radius`) on a log grid of β = r_s/σ of
+    (:func:`stt_drake.core.probability.level_set_radius`, compiled as
+    :func:`stt_drake.core._kernels.level_set_offsets`) on a log grid of β = r_s/σ of
     relative spacing :data:`BETA_SPACING`, kept per level as a table that grows to cover
     the β asked for, and interpolated linearly in log β (relative error ≪ 1 %: a route,
     not a certificate)."""
@@ -130,15 +131,23 @@ class LevelSetRadii:
         if values.size and first <= low and high <= last:
             return first, values
         new_first, new_last = min(first, low), max(last, high)
-        grown = np.empty(new_last - new_first + 1)
-        for index in range(new_first, new_last + 1):
-            if values.size and first <= index <= last:
-                grown[index - new_first] = values[index - first]
-            else:
-                beta = math.exp(index * math.log1p(BETA_SPACING))
-                grown[index - new_first] = level_set_radius(level, 1.0, beta, self.dimension)
+        indices = np.arange(new_first, new_last + 1)
+        missing = (indices < first) | (indices > last)  # all of them for a new table
+        grown = np.empty(indices.size)
+        if values.size:
+            grown[first - new_first : last - new_first + 1] = values
+        grown[missing] = self._radii(level, np.exp(indices[missing] * math.log1p(BETA_SPACING)))
         self._tables[level] = (new_first, grown)
         return new_first, grown
+
+    def _radii(self, level: float, beta: np.ndarray) -> np.ndarray:
+        """ρ(β; level) for σ = 1 at each β: one call of the compiled
+        :func:`stt_drake.core._kernels.level_set_offsets` (unless the numpy path is selected),
+        else :func:`stt_drake.core.probability.level_set_radius` one by one."""
+        kernel = backend.compiled("level_set_offsets", self.dimension)
+        if kernel is not None:
+            return kernel(np.ascontiguousarray(beta, dtype=float), float(level), self.dimension)
+        return np.array([level_set_radius(level, 1.0, b, self.dimension) for b in beta])
 
     def __call__(self, sigma: np.ndarray, radius: np.ndarray, level: np.ndarray) -> np.ndarray:
         """D (metres) for σ (K, m), r_s (m,) and level (m,); 0 where σ is not > 0."""
