@@ -15,7 +15,7 @@ from stt_drake.core._anisotropic_tube import isotropic_variance as compiled_isot
 from stt_drake.core.anisotropic_tube import isotropic_variance
 from stt_drake.core.belief import ObstacleBelief
 from stt_drake.core.constants import ISOTROPIC_RTOL
-from stt_drake.core.tube import TubeLaw
+from tests.core.test_anisotropic_tube import make_law
 
 SEED = 20261127
 
@@ -59,16 +59,7 @@ def test_law_terms_match_the_contour_integral_within_the_tolerance(n, compiled):
     total-variation bound 1.5·n·ISOTROPIC_RTOL plus the contour's own 1.5e-13; d̂ within
     1e-9 relative, as the reduction to the paper's law is checked."""
     rng = np.random.default_rng(SEED + n)
-    law = TubeLaw(
-        target=np.full(n, 4.0),
-        k1=0.4,
-        k2=0.3,
-        k3=0.2,
-        r_min=0.1,
-        r_max=0.8,
-        nu=20.0,
-        max_center_speed=2.0,
-    )
+    law = make_law(n)
     count = 6
     compared = 0
     with backend.pure_numpy(not compiled):
