@@ -186,7 +186,7 @@ def anisotropic_obstacle(
     """
     n = offset.shape[0]
     variance = isotropic_variance(covariance)
-    if variance == variance:
+    if not math.isnan(variance):
         return isotropic_terms(
             offset,
             distance,

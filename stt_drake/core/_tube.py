@@ -537,10 +537,10 @@ def tube_step_obstacles(
     law: np.ndarray,
 ) -> np.ndarray:
     """:func:`tube_step` for isotropic obstacles given as arrays (one per obstacle), without
-    circulation, inflation or slot flags, with the law's k2, k3 and constants packed in `law`
-    as [len(k2), len(k3), k2, k3, constants] (:meth:`stt_drake.core.tube.TubeLaw.
-    kernel_arguments`): 7 arguments where :func:`tube_step` takes 13 (numba's dispatch
-    costs ~50 ns an argument, a tenth of a typical 50-obstacle step)."""
+    circulation, inflation or slot flags, with the law's k2, k3 and constants
+    (:meth:`stt_drake.core.tube.TubeLaw.kernel_arguments`) packed once per law in `law` as
+    [len(k2), len(k3), k2, k3, constants]: 7 arguments where :func:`tube_step` takes 13
+    (numba's dispatch costs ~50 ns an argument, a tenth of a typical 50-obstacle step)."""
     k2_end = 2 + int(law[0])
     k3_end = k2_end + int(law[1])
     none = sigma[:0]

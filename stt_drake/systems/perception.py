@@ -254,7 +254,7 @@ class ObstacleTracker(LeafSystem):
         self._tracks = self.DeclareDiscreteState(tracker.empty(count).to_vector())
         self._updates = self.DeclareDiscreteState(np.zeros(count))
         # The blend's start: the last update's time, then the tracks before it (one group:
-        # the belief, evaluated at every step, reads it with one lookup).
+        # the belief, evaluated at nearly every derivative evaluation, reads it in one lookup).
         self._blend_start = self.DeclareDiscreteState(
             np.concatenate([[-np.inf], tracker.empty(count).to_vector()])
         )
