@@ -17,10 +17,14 @@ from __future__ import annotations
 
 import statistics
 import time
+from dataclasses import dataclass
 from importlib.resources import files
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from stt_drake.core.guide import Route, RoutePlanner, ScriptedForecast
 
 #: The fields the replan is timed on (packaged scenario names) by dimension.
 PLAN_FIELDS = {"2d": "omni_cluttered_50", "3d": "uav_cluttered"}
@@ -30,10 +34,30 @@ PLAN_COUNT = 50
 GUIDED_LOOP, GUIDED_SEEDS = "liveness_clutter_2d", tuple(range(8))
 
 
-def bench_guide_plans(plans: int = 60) -> dict[str, Any]:
-    """Per dimension: ``median`` and ``p99`` of one replan (ms, wall clock, after a warm-up
-    plan that loads the compiled search), its ``expansions`` median and the field's
-    obstacle ``count``."""
+@dataclass(frozen=True)
+class PlanWorkload:
+    """One dimension's replan workload: the planner, the scripted forecast of the field's
+    obstacles, its knot offsets, the start and goal, and the field's obstacle count."""
+
+    planner: RoutePlanner
+    forecast: ScriptedForecast
+    knots: np.ndarray
+    start: np.ndarray
+    goal: np.ndarray
+    count: int
+
+    def plan(self, k: int, plans: int) -> Route:
+        """Replan `k` of `plans`: from the point 0.6·k/plans of the way to the goal, at
+        t = 40·k/plans s."""
+        t0 = 40.0 * k / plans
+        origin = self.start + (self.goal - self.start) * (0.6 * k / plans)
+        return self.planner.plan(origin, self.goal, t0, self.forecast(t0 + self.knots))
+
+
+def plan_workload(key: str) -> PlanWorkload:
+    """The replan workload of :data:`PLAN_FIELDS`[`key`] ("2d" or "3d") with
+    :data:`PLAN_COUNT` obstacles and the default guide, after one warm-up plan that loads
+    the compiled search."""
     from stt_drake.assembly import prepare_scenario
     from stt_drake.assembly.guide import guide_settings
     from stt_drake.assembly.laws import make_tube_law
@@ -41,33 +65,45 @@ def bench_guide_plans(plans: int = 60) -> dict[str, Any]:
     from stt_drake.core.belief import ObstacleTask
     from stt_drake.core.guide import RoutePlanner, ScriptedForecast
 
+    name = PLAN_FIELDS[key]
+    text = (files("stt_drake.diagrams") / f"{name}.yaml").read_text()
+    schema = parse_schema(text, name)
+    schema.random_obstacles.count = PLAN_COUNT
+    schema.guide = GuideConfig()
+    scenario = prepare_scenario(schema)
+    law = make_tube_law(scenario)
+    settings = guide_settings(scenario, law)
+    task = ObstacleTask.of(scenario.obstacles)
+    workload = PlanWorkload(
+        planner=RoutePlanner(settings, task.radius, task.epsilon, law.r_min, scenario.dimension),
+        forecast=ScriptedForecast(scenario.obstacles, scenario.dimension),
+        knots=settings.knots,
+        start=np.asarray(scenario.start, dtype=float),
+        goal=np.asarray(scenario.target, dtype=float),
+        count=len(scenario.obstacles),
+    )
+    workload.plan(0, 1)  # warm-up
+    return workload
+
+
+def bench_guide_plans(plans: int = 60) -> dict[str, Any]:
+    """Per dimension: ``median`` and ``p99`` of one replan (ms, wall clock, after a warm-up
+    plan that loads the compiled search), its ``expansions`` median and the field's
+    obstacle ``count``."""
     results: dict[str, Any] = {}
-    for key, name in PLAN_FIELDS.items():
-        text = (files("stt_drake.diagrams") / f"{name}.yaml").read_text()
-        schema = parse_schema(text, name)
-        schema.random_obstacles.count = PLAN_COUNT
-        schema.guide = GuideConfig()
-        scenario = prepare_scenario(schema)
-        law = make_tube_law(scenario)
-        settings = guide_settings(scenario, law)
-        task = ObstacleTask.of(scenario.obstacles)
-        planner = RoutePlanner(settings, task.radius, task.epsilon, law.r_min, scenario.dimension)
-        forecast = ScriptedForecast(scenario.obstacles, scenario.dimension)
-        start, goal = np.asarray(scenario.start), np.asarray(scenario.target)
-        planner.plan(start, goal, 0.0, forecast(settings.knots))  # warm-up
+    for key in PLAN_FIELDS:
+        workload = plan_workload(key)
         times, expansions = [], []
         for k in range(plans):
-            t0 = 40.0 * k / plans
-            origin = start + (goal - start) * (0.6 * k / plans)
             begin = time.perf_counter()
-            route = planner.plan(origin, goal, t0, forecast(t0 + settings.knots))
+            route = workload.plan(k, plans)
             times.append(1e3 * (time.perf_counter() - begin))
             expansions.append(route.expansions)
         results[key] = {
             "median": statistics.median(times),
             "p99": float(np.percentile(times, 99)),
             "expansions": statistics.median(expansions),
-            "count": len(scenario.obstacles),
+            "count": workload.count,
             "plans": plans,
         }
     return results
