@@ -1,7 +1,9 @@
 """`make bench-compare`: the benchmark history's rows (this folder) timed on a reference
 commit (default ``main``) and then on the working tree, on this machine; prints every row's
 minimum and median on both and their ratios, names every row more than :data:`THRESHOLD`
-slower on the working tree, and exits 1 if there is one (2 if a run could not be made).
+slower on the working tree, and exits 1 if there is one (2 if a run could not be made). A
+row file that does not import on the reference (a new row on a new helper) is left out of
+the reference's run: its rows are timed on the working tree only, and the output says so.
 
 The reference is exported with ``git archive`` into a temporary folder, the working tree's
 benchmark files are copied into it, and its rows run from there: pytest puts the folder it
@@ -53,6 +55,20 @@ def _timed_rows(output: Path, tree: Path) -> dict[str, Timing] | None:
     return {row["fullname"]: (row["stats"]["min"], row["stats"]["median"]) for row in rows}
 
 
+def unimportable(tree: Path) -> list[Path]:
+    """The row files of `tree`/benchmarks that do not import against the stt_drake of
+    `tree`: the working tree's files copied onto an older reference, whose new rows use
+    helpers the reference does not have yet."""
+    env = {key: value for key, value in os.environ.items() if key != "PYTHONPATH"}
+    env["PYTHONPATH"] = str(tree)
+    failing = []
+    for path in sorted((tree / "benchmarks").glob("test_*.py")):
+        command = [sys.executable, "-c", f"import benchmarks.{path.stem}"]
+        if subprocess.run(command, cwd=tree, env=env, capture_output=True).returncode != 0:
+            failing.append(path)
+    return failing
+
+
 def regressions(reference: dict[str, Timing], working: dict[str, Timing]) -> list[str]:
     """The rows of both runs whose minimum and median both grew by more than
     :data:`THRESHOLD`."""
@@ -77,6 +93,9 @@ def main(argv: list[str]) -> int:
             return 2
         subprocess.run(["tar", "-x", "-C", str(base)], input=archive.stdout, check=True)
         shutil.copytree(ROOT / "benchmarks", base / "benchmarks", dirs_exist_ok=True)
+        for path in unimportable(base):  # their rows are timed on the working tree only
+            print(f"bench-compare: {path.name} does not import on {reference_name}: not compared")
+            path.unlink()
         print(f"bench-compare: timing {reference_name}", flush=True)
         reference = _timed_rows(Path(folder) / "reference.json", base)
         print("bench-compare: timing the working tree", flush=True)

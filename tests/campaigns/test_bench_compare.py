@@ -64,3 +64,19 @@ def test_each_run_times_the_tree_it_is_asked_to(tmp_path):
     )  # fmt: skip
     assert checked.returncode == 2
     assert f"asked to time {stub}" in checked.stdout + checked.stderr
+
+
+def test_row_files_that_do_not_import_on_the_reference_are_found(tmp_path):
+    """A new row on a new helper: its file does not import on an older reference, so the
+    comparison leaves it out of that run (and says so) instead of failing the whole run."""
+    from benchmarks.compare_with_main import unimportable
+
+    tree = tmp_path / "older"
+    (tree / "stt_drake").mkdir(parents=True)
+    (tree / "stt_drake" / "__init__.py").write_text("HELPER = 1\n")
+    rows = tree / "benchmarks"
+    rows.mkdir()
+    (rows / "__init__.py").write_text("")
+    (rows / "test_old_row.py").write_text("from stt_drake import HELPER\n")
+    (rows / "test_new_row.py").write_text("from stt_drake import NEW_HELPER\n")
+    assert unimportable(tree) == [rows / "test_new_row.py"]
