@@ -121,15 +121,17 @@ def obstacle_terms(
             center, mean[j], covariance[j], radius[j], epsilon[j], r_min
         )
         variance = isotropic_variance(covariance[j])
-        one = slice(j, j + 1)  # obstacle j as the isotropic law's (1,) arrays
+        # Σ_j = σ_j²I: σ_j as the isotropic law's (1,) array, obstacle j as its (1,) slices
+        sigma = None if variance is None else np.sqrt([variance])
+        one = slice(j, j + 1)
         if prune_above is None or (prune_above != -np.inf and d_lower <= prune_above):
-            if variance is None:
+            if sigma is None:
                 d_hat[j] = anisotropic.quantile_distance(
                     center, mean[j], covariance[j], radius[j], epsilon[j]
                 )
             else:
                 d_hat[j] = probability.quantile_distance(
-                    center, mean[one], np.sqrt([variance]), radius[one], epsilon[one]
+                    center, mean[one], sigma, radius[one], epsilon[one]
                 )[0]
         elif prune_above != -np.inf:
             d_hat[j] = d_lower
@@ -137,8 +139,8 @@ def obstacle_terms(
             q[j] = q_lower
             continue
         reach = radius[j] + r_min
-        if variance is not None:
-            q[j] = probability.avoid_probability(center, mean[one], np.sqrt([variance]), reach)[0]
+        if sigma is not None:
+            q[j] = probability.avoid_probability(center, mean[one], sigma, reach)[0]
             if q[j] <= p_d[j] and distance > 0.0:
                 direction[j] = (center - mean[j]) / distance
             continue

@@ -134,8 +134,7 @@ class LevelSetRadii:
         indices = np.arange(new_first, new_last + 1)
         missing = (indices < first) | (indices > last)  # all of them for a new table
         grown = np.empty(indices.size)
-        if values.size:
-            grown[first - new_first : last - new_first + 1] = values
+        grown[first - new_first : last - new_first + 1] = values  # an empty slice if new
         grown[missing] = self._radii(level, np.exp(indices[missing] * math.log1p(BETA_SPACING)))
         self._tables[level] = (new_first, grown)
         return new_first, grown
