@@ -73,8 +73,10 @@ def test_tube_contexts_alternating_get_each_their_own_evaluation(law_calls):
         for context, center in zip(contexts, centers, strict=True):
             tube.set_center(context, center)  # the same centre: invalidates the Drake cache
             rate = tube.EvalTimeDerivatives(context).CopyToVector()
-            # Equal bit for bit: the same compiled call on the same inputs in this process
-            # (a memo hit returns that result itself, a miss recomputes it).
+            # Equal bit for bit: both run the compiled tube_step's arithmetic (no fast-math,
+            # so no reordering) on the same values, since the port's σ = √λ_max(σ²I) is σ
+            # exactly (the square root of a rounded square is exact in binary floating
+            # point); a memo hit returns that result itself, a miss recomputes it.
             np.testing.assert_array_equal(rate, law.evaluate(center, TUBE_BELIEF).center_rate)
     assert law_calls[0] == 2 * 2  # each Eval a miss (the test's own calls not counted)
 
