@@ -89,18 +89,27 @@ def projected_sigma(offset: np.ndarray, covariances: np.ndarray, j: int, distanc
 
 @njit(**_INLINE)
 def anisotropic_bounds(
-    distance: float, sigma: float, radius: float, epsilon: float, r_min: float, prune_above: float
+    distance: float,
+    sigma: float,
+    radius: float,
+    epsilon: float,
+    normal_quantile: float,
+    r_min: float,
+    prune_above: float,
 ) -> tuple[float, float]:
     """The pruning lower bounds of obstacle j (full covariance) at distance ‖c − μ_j‖, with
     s = `sigma` = :func:`projected_sigma`: q_j ≥ Φ((‖c − μ_j‖ − r_o − r_min)/s) and
-    d̂_j ≥ max(‖c − μ_j‖ − s Φ⁻¹(ε), 0) − r_o (NaN where prune_above = −∞: d̂ not wanted).
+    d̂_j ≥ max(‖c − μ_j‖ − s Φ⁻¹(ε), 0) − r_o (NaN where prune_above = −∞: d̂ not wanted;
+    `normal_quantile` is Φ⁻¹(ε) where the caller has it, else NaN and computed here).
     Where q's bound exceeds p_d_j and d̂'s exceeds `prune_above`, they are the obstacle's
     terms (:func:`anisotropic_obstacle` is not needed). Scalars only: a call costs no
     reference counting."""
     q_lower = ndtr((distance - (radius + r_min)) / sigma)
     if prune_above == -math.inf:
         return q_lower, math.nan
-    return q_lower, max(distance - sigma * ndtri(epsilon), 0.0) - radius
+    if math.isnan(normal_quantile):
+        normal_quantile = ndtri(epsilon)
+    return q_lower, max(distance - sigma * normal_quantile, 0.0) - radius
 
 
 @njit(**_INLINE)

@@ -98,7 +98,7 @@ def anisotropic_invariants_packed(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """The margins of :func:`stt_drake.core.invariants.evaluate_tube_invariants` with full
     covariances, on port vectors: tube = [c, r], the belief port vector and the task rows
-    ([r_o, ε, p_d] per slot); the active slots only (the inactive ones: probability 1).
+    ([r_o, ε, p_d, …] per slot); the active slots only (the inactive ones: probability 1).
 
     Returns:
         (margins (5,), P(‖y − O_j‖ ≥ r_o_j) per slot, P(‖c − O_j‖ ≥ r_o_j + r) per slot,

@@ -699,8 +699,8 @@ def largest_variance(table: np.ndarray, j: int, n: int) -> float:
 def active_slots(
     belief: np.ndarray, task: np.ndarray, n: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The active slots of a belief port vector with their task rows ([r_o, ε, p_d] per
-    slot): (slot indices, μ (k, n), σ = √λ_max(Σ) (k,), task rows (k, 3))."""
+    """The active slots of a belief port vector with their task rows ([r_o, ε, p_d, …] per
+    slot): (slot indices, μ (k, n), σ = √λ_max(Σ) (k,), task rows [r_o, ε, p_d] (k, 3))."""
     table = belief.reshape((-1, n + n * n + 1))
     count = table.shape[0]
     active = 0

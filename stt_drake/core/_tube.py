@@ -90,6 +90,7 @@ def isotropic_obstacle(
     sigma: float,
     radius: float,
     epsilon: float,
+    normal_quantile: float,
     r_min: float,
     prune_above: float,
     inflated: bool,
@@ -101,7 +102,9 @@ def isotropic_obstacle(
     `inflated`, the period lower bound of :func:`period_avoid_probability` for `reach`,
     `spread`) and d̂_j (Eq. (8), always at the exact belief; the quantile is skipped where
     the bound σ(a − Φ⁻¹(ε)) − r_o already exceeds `prune_above`, and that bound is returned;
-    NaN where prune_above = −∞). Scalars only: a call costs no reference counting."""
+    NaN where prune_above = −∞). `normal_quantile` is Φ⁻¹(ε) where the caller has it (a
+    task table's), else NaN: it is then computed here, only where d̂ is wanted. Scalars
+    only: a call costs no reference counting."""
     a = distance / sigma
     if inflated:
         q = period_avoid_probability(distance, sigma, radius + r_min, reach, spread, n)
@@ -109,7 +112,8 @@ def isotropic_obstacle(
         q = chi_sf((radius + r_min) / sigma, a, n)
     if prune_above == -math.inf:  # ċ, q, θ only: d̂ (and so r) not wanted
         return q, math.nan
-    normal_quantile = ndtri(epsilon)  # Φ⁻¹(ε), once for the bound and the quantile
+    if math.isnan(normal_quantile):  # Φ⁻¹(ε), once for the bound and the quantile
+        normal_quantile = ndtri(epsilon)
     lower = sigma * max(a - normal_quantile, 0.0) - radius
     if lower > prune_above:
         return q, lower
@@ -123,6 +127,42 @@ def tube_step(
     uncertainty: np.ndarray,
     radius: np.ndarray,
     epsilon: np.ndarray,
+    p_d: np.ndarray,
+    k2: np.ndarray,
+    k3: np.ndarray,
+    reach: np.ndarray,
+    spread: np.ndarray,
+    circulation: np.ndarray,
+    constants: np.ndarray,
+    active: np.ndarray,
+) -> np.ndarray:
+    """:func:`tube_step_given` computing each Φ⁻¹(ε_j) where it needs it."""
+    return tube_step_given(
+        center,
+        mean,
+        uncertainty,
+        radius,
+        epsilon,
+        epsilon[:0],
+        p_d,
+        k2,
+        k3,
+        reach,
+        spread,
+        circulation,
+        constants,
+        active,
+    )
+
+
+@njit(**_JIT)
+def tube_step_given(
+    center: np.ndarray,
+    mean: np.ndarray,
+    uncertainty: np.ndarray,
+    radius: np.ndarray,
+    epsilon: np.ndarray,
+    normal_quantile: np.ndarray,
     p_d: np.ndarray,
     k2: np.ndarray,
     k3: np.ndarray,
@@ -151,6 +191,10 @@ def tube_step(
     flag per slot (empty: every row is an obstacle); an inactive slot stays at q = 1,
     d̂ = +∞, θ = 0, outside ċ and r.
 
+    `normal_quantile` holds Φ⁻¹(ε_j) per obstacle where the caller has them (a task table's
+    fourth column: made once per task, not once per obstacle and evaluation), or is empty:
+    then each is computed where a pruning bound needs it.
+
     Returns:
         (ċ, r, q, d̂, θ) in one array (:func:`step_parts`): one array to box on return
         costs less than four.
@@ -173,11 +217,13 @@ def tube_step(
     _attraction(center, target, k1, linear_zone, goal, rate)
     inflated = reach.shape[0] == count
     flagged = active.shape[0] == count
+    given = normal_quantile.shape[0] == count
     for j in range(count):
         if flagged and not active[j] > 0.5:
             q[j] = 1.0
             d_hat[j] = math.inf
             continue
+        quantile = normal_quantile[j] if given else math.nan  # Φ⁻¹(ε_j), or computed
         if uncertainty.ndim == 1:
             distance = _distance(center, mean, j)
             qj, dj = isotropic_obstacle(
@@ -185,6 +231,7 @@ def tube_step(
                 uncertainty[j],
                 radius[j],
                 epsilon[j],
+                quantile,
                 r_min,
                 prune_above,
                 inflated,
@@ -204,7 +251,7 @@ def tube_step(
             distance = math.sqrt(distance)
             sigma_u = projected_sigma(offset, uncertainty, j, distance)
             qj, dj = anisotropic_bounds(
-                distance, sigma_u, radius[j], epsilon[j], r_min, prune_above
+                distance, sigma_u, radius[j], epsilon[j], quantile, r_min, prune_above
             )
             acts = False
             if qj <= p_d[j] or dj <= prune_above:  # a bound does not decide
@@ -572,7 +619,7 @@ def tube_step_packed(
     circulation: np.ndarray,
     constants: np.ndarray,
 ) -> np.ndarray:
-    """:func:`tube_step` on a belief port vector and the task rows ([r_o, ε, p_d] per slot),
+    """:func:`tube_step` on a belief port vector and the task rows ([r_o, ε, p_d, Φ⁻¹(ε)]),
     read in place slot by slot, σ_j = √λ_max(Σ_j); q = 1, d̂ = +∞, θ = 0 in the inactive
     slots (they never reach ċ or r); laid out as :func:`tube_step`'s result."""
     n = center.shape[0]
@@ -626,14 +673,16 @@ def _port_pass(
     constants: np.ndarray,
 ) -> np.ndarray:
     """:func:`tube_step` over the slots of a port `table` (μ in its first n columns, the
-    activity flag last) with their σ_j or Σ_j and task rows: nothing is copied per slot."""
+    activity flag last) with their σ_j or Σ_j and task rows ([r_o, ε, p_d, Φ⁻¹(ε)]:
+    :meth:`stt_drake.core.belief.ObstacleTask.table`): nothing is copied per slot."""
     no_inflation = task[:0, 0]
-    return tube_step(
+    return tube_step_given(
         center,
         table,
         uncertainty,
         task[:, 0],
         task[:, 1],
+        task[:, 3],
         task[:, 2],
         k2,
         k3,
@@ -913,8 +962,8 @@ def tube_advance_packed(
     max_attempts: int,
 ) -> tuple[np.ndarray, np.ndarray, int, float, float, np.ndarray]:
     """:func:`tube_advance` on a belief port vector whose slots are all active and the task
-    rows ([r_o, ε, p_d] per slot), read in place as :func:`tube_step_packed` reads them:
-    a fixed-rate update copies nothing."""
+    rows (:meth:`stt_drake.core.belief.ObstacleTask.table`; r_o, ε, p_d read), read in place
+    as :func:`tube_step_packed` reads them: a fixed-rate update copies nothing."""
     n = center.shape[0]
     table = belief.reshape((-1, n + n * n + 1))
     return tube_advance(

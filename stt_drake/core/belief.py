@@ -25,6 +25,7 @@ from functools import cached_property
 from typing import Protocol
 
 import numpy as np
+from scipy import special
 
 from stt_drake.core.motion import CovarianceSchedule, Motion, MotionTable, SigmaSchedule
 from stt_drake.core.rules import check_obstacles, check_task_slots, checked_by
@@ -148,12 +149,13 @@ class ObstacleTask:
         return self.radius.shape[0]
 
     def table(self) -> np.ndarray:
-        """(m, 3) rows [r_o, ε, p_d] per slot: the compiled kernels' layout (made once)."""
+        """(m, 4) rows [r_o, ε, p_d, Φ⁻¹(ε)] per slot: the compiled kernels' layout, made once."""
         return self._table
 
     @cached_property
     def _table(self) -> np.ndarray:
-        return np.column_stack([self.radius, self.epsilon, self.p_d]).astype(float)
+        columns = [self.radius, self.epsilon, self.p_d, special.ndtri(self.epsilon)]
+        return np.column_stack(columns).astype(float)
 
     @classmethod
     def of(cls, obstacles: Sequence[ObstacleModel]) -> ObstacleTask:
@@ -289,8 +291,7 @@ class ObstacleBelief:
 class CovarianceBelief(ObstacleBelief):
     """An :class:`ObstacleBelief` with full covariances Σ_j whose σ_j = √λ_max(Σ_j) is
     computed on first read (:meth:`ObstacleBelief.of` with `full_covariance`): the exact law
-    and the monitor read Σ_j only, and an eigen-decomposition per evaluation would cost
-    more than the law's compiled call."""
+    and the monitor read Σ_j only (an eigen-decomposition per evaluation costs more)."""
 
     def __init__(
         self,
@@ -461,8 +462,7 @@ def axes_covariance(
 
 def has_full_covariance(obstacle: ObstacleModel) -> bool:
     """Whether the obstacle gives a full covariance (`covariance`, `axes_sigma` or
-    `covariance_schedule`) rather than σ. A model without these attributes (written before
-    full covariances) is isotropic."""
+    `covariance_schedule`) rather than σ; a model without these attributes is isotropic."""
     return any(
         getattr(obstacle, name, None) is not None
         for name in ("covariance_schedule", "covariance", "axes_sigma")

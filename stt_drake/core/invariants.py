@@ -128,7 +128,7 @@ def port_invariants(
     r_min: float,
 ) -> InvariantSample | None:
     """:func:`evaluate_tube_invariants` of the belief a port `vector` holds (`task`: the rows
-    [r_o, ε, p_d] per slot, :meth:`ObstacleTask.table`) in one compiled call, without making
+    [r_o, ε, p_d, Φ⁻¹(ε)] per slot, :meth:`ObstacleTask.table`) in one compiled call, without making
     the belief: :func:`stt_drake.core._kernels.invariant_margins_packed` (σ_j) or, with
     `full_covariance`, :func:`stt_drake.core._invariants.anisotropic_invariants_packed`
     (each Σ_j). `output` and `tube` are float arrays. None where the belief's path must run
