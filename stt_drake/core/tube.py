@@ -384,7 +384,7 @@ class TubeLaw:
         full = belief.covariance is not None
         if not full and circulation is None and inflation is None:
             call = self._kernel_call("tube_step_obstacles", n, count, mode)
-            if call is not None:  # 7 arguments, not tube_step's 13: dispatch costs per argument
+            if call is not None:  # 7 arguments, not tube_step's 14: dispatch costs per argument
                 kernel, law = call
                 mean, sigma = belief.mean, belief.sigma
                 out = kernel(center, mean, sigma, belief.radius, belief.epsilon, belief.p_d, law)
@@ -414,6 +414,7 @@ class TubeLaw:
                 belief.sigma,
                 belief.radius,
                 belief.epsilon,
+                _EMPTY,  # Φ⁻¹(ε_j): computed in the kernel where a bound needs it
                 belief.p_d,
                 k2,
                 k3,

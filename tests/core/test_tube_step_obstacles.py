@@ -1,6 +1,6 @@
 """The 7-argument entry of the compiled tube step (stt_drake.core._tube.tube_step_obstacles):
 it is tube_step on the law's gains and constants packed in one array, and the law sends a
-plain belief there (circulation or inflation still go to tube_step's 13 arguments)."""
+plain belief there (circulation or inflation still go to tube_step's 14 arguments)."""
 
 from __future__ import annotations
 
@@ -65,7 +65,7 @@ def test_it_is_tube_step_on_the_packed_law(n, worst):
             _, k2, k3, constants, axes = law._kernel_call("tube_step", n, count, mode)
             arrays = (belief.mean, belief.sigma, belief.radius, belief.epsilon, belief.p_d)
             expected = _tube.tube_step(
-                center, *arrays, k2, k3, empty, empty, axes, constants, empty
+                center, *arrays[:4], empty, arrays[4], k2, k3, empty, empty, axes, constants, empty
             )
             np.testing.assert_array_equal(kernel(center, *arrays, packed), expected)
 
