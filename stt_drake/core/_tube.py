@@ -763,6 +763,51 @@ def tube_advance(
     start_radius: float,
     max_attempts: int,
 ) -> tuple[np.ndarray, np.ndarray, int, float, float, np.ndarray]:
+    """:func:`_advance` on the obstacles' arrays, with Φ⁻¹(ε_j) computed here."""
+    normal_quantile = np.empty(epsilon.shape[0])
+    for j in range(epsilon.shape[0]):
+        normal_quantile[j] = ndtri(epsilon[j])
+    return _advance(
+        center,
+        mean,
+        sigma,
+        radius,
+        epsilon,
+        normal_quantile,
+        p_d,
+        k2,
+        k3,
+        mean_speed,
+        sigma_rate,
+        circulation,
+        constants,
+        prune_above,
+        duration,
+        start_radius,
+        max_attempts,
+    )
+
+
+@njit(**_JIT)
+def _advance(
+    center: np.ndarray,
+    mean: np.ndarray,
+    sigma: np.ndarray,
+    radius: np.ndarray,
+    epsilon: np.ndarray,
+    normal_quantile: np.ndarray,
+    p_d: np.ndarray,
+    k2: np.ndarray,
+    k3: np.ndarray,
+    mean_speed: np.ndarray,
+    sigma_rate: np.ndarray,
+    circulation: np.ndarray,
+    constants: np.ndarray,
+    prune_above: float,
+    duration: float,
+    start_radius: float,
+    max_attempts: int,
+) -> tuple[np.ndarray, np.ndarray, int, float, float, np.ndarray]:
     """:meth:`stt_drake.core.tube.TubeLaw.advance` in one call (same steps, same rules):
     sub-steps of the law with the look-ahead bound over 2·duration, each keeping every
     positive gap at least half and every boundary-layer weight within LAYER_STEP; then the
@@ -771,7 +816,8 @@ def tube_advance(
     (:func:`_end_radius_bound`, from `start_radius`; NaN: the first update) stays ≥ r_min;
     then the radius at both ends of the period. `constants` must skip the
     quantiles of the law (prune_above = −∞); `prune_above` is the law's own (the
-    radius bounds use it).
+    radius bounds use it); `normal_quantile` holds Φ⁻¹(ε_j), which every quantile bound
+    reads.
 
     Returns:
         (c_{k+1}, certified (m,) booleans, accepted sub-steps, r at the start and at the
@@ -838,9 +884,6 @@ def tube_advance(
         else:
             step *= 0.5
     reach1, spread1 = _inflation(sigma, mean_speed, sigma_rate, duration)
-    normal_quantile = np.empty(count)  # Φ⁻¹(ε_j), read by every quantile bound below
-    for j in range(count):
-        normal_quantile[j] = ndtri(epsilon[j])
     must_hold = np.empty(count, dtype=np.bool_)
     for j in range(count):
         start_q = period_avoid_probability(
@@ -931,16 +974,17 @@ def tube_advance_packed(
     max_attempts: int,
 ) -> tuple[np.ndarray, np.ndarray, int, float, float, np.ndarray]:
     """:func:`tube_advance` on a belief port vector whose slots are all active and the task
-    rows (:meth:`stt_drake.core.belief.ObstacleTask.table`; r_o, ε, p_d read), read in place
-    as :func:`tube_step_packed` reads them: a fixed-rate update copies nothing."""
+    rows (:meth:`stt_drake.core.belief.ObstacleTask.table`, Φ⁻¹(ε_j) included), read in
+    place as :func:`tube_step_packed` reads them: a fixed-rate update copies nothing."""
     n = center.shape[0]
     table = belief.reshape((-1, n + n * n + 1))
-    return tube_advance(
+    return _advance(
         center,
         table,
         _slot_sigmas(table, n),
         task[:, 0],
         task[:, 1],
+        task[:, 3],
         task[:, 2],
         k2,
         k3,

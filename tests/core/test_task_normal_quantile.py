@@ -1,6 +1,6 @@
 """Φ⁻¹(ε_j) in the task table: :meth:`ObstacleTask.table` carries it as a fourth column,
-made once per task, and the compiled tube law on a port reads it there instead of computing
-it for every slot at every evaluation (σ_j and Σ_j beliefs alike)."""
+made once per task, and the compiled tube law and fixed-rate update on a port read it there
+instead of computing it for every slot at every evaluation (σ_j and Σ_j beliefs alike)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from scipy import stats
 
 from stt_drake.bench import anisotropic_field, obstacle_field
 from stt_drake.core.belief import ObstacleTask
+from stt_drake.core.fixed_rate import BeliefRateBounds, advance, advance_port
 from stt_drake.core.tube_terms import evaluation_of
 
 
@@ -84,3 +85,22 @@ def test_the_port_law_reads_the_tables_quantiles(case):
     np.testing.assert_allclose(shifted.quantile_distance[pruned], bound[pruned], rtol=1e-14)
     moved = shifted.quantile_distance[pruned] < given.quantile_distance[pruned]
     assert moved.all()
+
+
+@pytest.mark.parametrize("worst", [False, True], ids=["typical", "worst"])
+@pytest.mark.parametrize("n", [2, 3])
+def test_the_fixed_rate_update_on_a_port_is_the_update_on_the_arrays(n, worst):
+    """The port's update reads Φ⁻¹(ε_j) from the task rows (scipy's), the arrays' update
+    computes it (AS 241): the same update to rounding. The sub-steps do not read it; the
+    radius bounds differ by σ_j times a few ulps of Φ⁻¹ (< 1e-14 m), or not at all where a
+    quantile is computed (it only starts from Φ⁻¹ and converges to rounding)."""
+    law, center, belief = obstacle_field(50, n, worst_case=worst, seed=5)
+    bounds = BeliefRateBounds(np.full(50, 0.5), np.full(50, 0.02))
+    on_port = advance_port(law, center, belief.to_vector(), belief.task, 0.01, bounds)
+    on_arrays = advance(law, center, belief, 0.01, bounds)
+    np.testing.assert_array_equal(on_port.center, on_arrays.center)
+    np.testing.assert_array_equal(on_port.certified, on_arrays.certified)
+    np.testing.assert_array_equal(on_port.theta, on_arrays.theta)
+    assert on_port.substeps == on_arrays.substeps
+    for radius in ("start_radius", "end_radius"):
+        assert abs(getattr(on_port, radius) - getattr(on_arrays, radius)) <= 1e-14
