@@ -138,7 +138,11 @@ SIGNATURES: dict[str, tuple[str, ...]] = {
     "chi_sf_array": (_signature(_VECTOR, _VECTOR, "int64"),),
     "chi_isf_array": (_signature(_VECTOR, _VECTOR, "int64"),),
     "level_set_offsets": (_signature(_VECTOR, "float64", "int64"),),
-    "tube_step": (_signature(_VECTOR, _MATRIX, *[_VECTOR] * 9, _MATRIX, _VECTOR, _VECTOR),),
+    "tube_step": (
+        _signature(
+            _VECTOR, _MATRIX, *[_VECTOR] * 3, "none", *[_VECTOR] * 5, _MATRIX, *[_VECTOR] * 2
+        ),
+    ),
     "tube_step_packed": (_PORT_STEP,),
     "tube_step_obstacles": (_signature(_VECTOR, _MATRIX, *[_VECTOR] * 5),),
     "exact_tube_step_packed": (_PORT_STEP,),

@@ -414,7 +414,7 @@ class TubeLaw:
                 belief.sigma,
                 belief.radius,
                 belief.epsilon,
-                _EMPTY,  # Φ⁻¹(ε_j): computed in the kernel where a bound needs it
+                None,  # Φ⁻¹(ε_j): computed in the kernel where a bound needs it
                 belief.p_d,
                 k2,
                 k3,

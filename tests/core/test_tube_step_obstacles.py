@@ -65,7 +65,7 @@ def test_it_is_tube_step_on_the_packed_law(n, worst):
             _, k2, k3, constants, axes = law._kernel_call("tube_step", n, count, mode)
             arrays = (belief.mean, belief.sigma, belief.radius, belief.epsilon, belief.p_d)
             expected = _tube.tube_step(
-                center, *arrays[:4], empty, arrays[4], k2, k3, empty, empty, axes, constants, empty
+                center, *arrays[:4], None, arrays[4], k2, k3, empty, empty, axes, constants, empty
             )
             np.testing.assert_array_equal(kernel(center, *arrays, packed), expected)
 
