@@ -4,12 +4,13 @@ plain belief there (circulation or inflation still go to tube_step's 14 argument
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from stt_drake.bench import obstacle_field
 from stt_drake.core import _tube, backend
-from stt_drake.core.belief import ObstacleBelief
 from stt_drake.core.tube import TubeLaw
 
 MODES = ("pruned", "exact", "rate")
@@ -17,16 +18,7 @@ MODES = ("pruned", "exact", "rate")
 
 def laws(law: TubeLaw, count: int) -> list[TubeLaw]:
     """`law`, and the same law with one k2 and k3 per obstacle."""
-    per_obstacle = TubeLaw(
-        target=law.target,
-        k1=law.k1,
-        k2=np.linspace(0.2, 0.6, count),
-        k3=np.linspace(0.0, 0.9, count),
-        r_min=law.r_min,
-        r_max=law.r_max,
-        nu=law.nu,
-        max_center_speed=law.max_center_speed,
-    )
+    per_obstacle = replace(law, k2=np.linspace(0.2, 0.6, count), k3=np.linspace(0.0, 0.9, count))
     return [law, per_obstacle]
 
 
@@ -38,26 +30,8 @@ def test_it_is_tube_step_on_the_packed_law(n, worst):
     count = 40
     base, center, belief = obstacle_field(count, max(n, 2), worst_case=worst, seed=3)
     if n == 1:  # obstacle_field draws n = 2, 3: a 1D field from the first coordinate
-        center, belief = (
-            center[:1],
-            ObstacleBelief(
-                mean=belief.mean[:, :1],
-                sigma=belief.sigma,
-                radius=belief.radius,
-                epsilon=belief.epsilon,
-                p_d=belief.p_d,
-            ),
-        )
-        base = TubeLaw(
-            target=base.target[:1],
-            k1=base.k1,
-            k2=base.k2,
-            k3=base.k3,
-            r_min=base.r_min,
-            r_max=base.r_max,
-            nu=base.nu,
-            max_center_speed=base.max_center_speed,
-        )
+        center, belief = center[:1], replace(belief, mean=belief.mean[:, :1])
+        base = replace(base, target=base.target[:1])
     empty = np.empty(0)
     for law in laws(base, count):
         for mode in MODES:
