@@ -5,16 +5,16 @@ A scenario is simulated as ``stt-drake bench`` simulates its closed loops (the m
 checking every guarantee at every step, the loggers on), then again with each compiled
 computation on the hot path replaced by a stand-in that returns a result the real one
 made: the belief source's and the tracker's port vector, the tube law's evaluation, the
-fixed-rate tube's update, the controller's control and the monitor's margins
-(:data:`STAND_INS`). What the stand-in run costs per derivative evaluation is the
+fixed-rate tube's update, the controller's control (the arm's law and its Jacobian) and the
+monitor's margins (:data:`STAND_INS`). What the stand-in run costs per derivative evaluation is the
 Diagram's structure: Drake's framework, the calls into Python and back, the ports and
 cache entries, and the Python around each computation. No speed-up of the arithmetic can
 take a loop below it. The stand-in run's dynamics differ (its tube and control are
 constant), so the bound is also given at the real run's number of derivative evaluations.
 
 The stand-ins return the last result each computation made in a real run of the first
-`capture` seconds, and count their calls: a computation the scenario does not call reads 0
-(the arm's law, for instance, has no stand-in here and stays real).
+`capture` seconds, and count their calls: a computation the scenario does not call reads 0.
+What has no stand-in stays real: the plants, a crowd simulator, the guide, the sensor.
 
 Usage: ``python benchmarks/structure_bound.py [SCENARIO ...] [--rate HZ] [--repeats N]``
 (default: the closed loops of ``stt-drake bench``; each scenario's own tube rate unless
@@ -39,6 +39,8 @@ STAND_INS = (
     ("stt_drake.systems.tube", None, "advance_port"),
     ("stt_drake.core.control", "FunnelController", "control_from_tube"),
     ("stt_drake.systems.monitor", None, "port_invariants"),
+    ("stt_drake.core.arm", "ArmFunnelLaw", "evaluate"),
+    ("stt_drake.systems.plants.franka", "ArmKinematics", "jacobian"),
 )
 
 
