@@ -73,21 +73,6 @@ def _replaced(make: Callable[[str, Callable[..., Any]], Callable[..., Any]]) -> 
             setattr(holder, attribute, original)
 
 
-def _timed_run(scenario: Any) -> dict[str, float]:
-    """One simulation of `scenario` as `stt-drake bench` runs its closed loops: wall
-    seconds of ``AdvanceTo`` and derivative evaluations."""
-    from stt_drake.bench.loops import ready_simulator
-
-    simulator, _ = ready_simulator(scenario)
-    wall = time.perf_counter()
-    simulator.AdvanceTo(scenario.duration)
-    wall = time.perf_counter() - wall
-    return {
-        "wall_s": wall,
-        "evaluations": simulator.get_integrator().get_num_derivative_evaluations(),
-    }
-
-
 def captured_results(scenario: Any, capture: float) -> dict[str, Any]:
     """The last result of each replaced computation in a real run of `scenario`'s first
     `capture` simulated seconds (a computation it never calls is absent)."""
@@ -131,26 +116,29 @@ def stand_ins(results: dict[str, Any], calls: dict[str, int]) -> Iterator[None]:
 def structure_bound(scenario: Any, repeats: int = 3, capture: float = 2.0) -> dict[str, Any]:
     """The real loop and the stand-in loop of `scenario`, timed in turn `repeats` times
     each (best of each): wall µs per derivative evaluation, the real-time factors, and the
-    stand-in loop's cost at the real loop's evaluation count (its structure bound)."""
+    stand-in loop's cost at the real loop's evaluation count (its structure bound). Each
+    run is :func:`stt_drake.bench.loops.time_closed_loop`, as `stt-drake bench` times it."""
+    from stt_drake.bench.loops import time_closed_loop
+
     results = captured_results(scenario, capture)
     calls = {label: 0 for label, _, _ in _targets()}
     real, hollow = [], []
     for _ in range(repeats):
-        real.append(_timed_run(scenario))
+        real.append(time_closed_loop(scenario))
         with stand_ins(results, calls):
-            hollow.append(_timed_run(scenario))
+            hollow.append(time_closed_loop(scenario))
 
-    def per_evaluation(run: dict[str, float]) -> float:
-        return 1e6 * run["wall_s"] / run["evaluations"]
+    def per_evaluation(run: dict[str, Any]) -> float:
+        return 1e6 * run["wall_s"] / run["derivative_evaluations"]
 
     best_real, best_hollow = min(real, key=per_evaluation), min(hollow, key=per_evaluation)
-    bound_wall = per_evaluation(best_hollow) * 1e-6 * best_real["evaluations"]
+    bound_wall = per_evaluation(best_hollow) * 1e-6 * best_real["derivative_evaluations"]
     return {
         "real_us_per_evaluation": per_evaluation(best_real),
         "real_realtime_factor": scenario.duration / best_real["wall_s"],
-        "real_evaluations": best_real["evaluations"],
+        "real_evaluations": best_real["derivative_evaluations"],
         "structure_us_per_evaluation": per_evaluation(best_hollow),
-        "structure_evaluations": best_hollow["evaluations"],
+        "structure_evaluations": best_hollow["derivative_evaluations"],
         "structure_realtime_factor": scenario.duration / bound_wall,
         "stand_in_calls": {label: count // repeats for label, count in calls.items()},
     }

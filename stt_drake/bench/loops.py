@@ -59,7 +59,7 @@ def ready_simulator(scenario: Scenario) -> tuple[Simulator, InvariantTracker]:
     return simulator, tracker
 
 
-def _time_closed_loop(scenario: Scenario) -> dict[str, Any]:
+def time_closed_loop(scenario: Scenario) -> dict[str, Any]:
     """One simulation of `scenario` (:func:`ready_simulator`), timed by wall clock and
     process CPU time."""
     simulator, tracker = ready_simulator(scenario)
@@ -111,7 +111,7 @@ def bench_closed_loop(
     scenario = closed_loop_scenario(name, duration, update_rate_hz)
     if scenario is None:
         return {"available": False, "reason": f"{name}.yaml not found"}
-    return _closed_loop_summary(scenario, [_time_closed_loop(scenario) for _ in range(repeats)])
+    return _closed_loop_summary(scenario, [time_closed_loop(scenario) for _ in range(repeats)])
 
 
 def bench_fixed_rate_against_continuous(
@@ -135,11 +135,11 @@ def bench_fixed_rate_against_continuous(
     pairs = []
     for k in range(repeats):
         if k % 2 == 0:
-            first = _time_closed_loop(continuous)
-            pairs.append((first, _time_closed_loop(fixed)))
+            first = time_closed_loop(continuous)
+            pairs.append((first, time_closed_loop(fixed)))
         else:
-            first = _time_closed_loop(fixed)
-            pairs.append((_time_closed_loop(continuous), first))
+            first = time_closed_loop(fixed)
+            pairs.append((time_closed_loop(continuous), first))
     ratios = [f["realtime_factor"] / c["realtime_factor"] for c, f in pairs]
     cpu_ratios = [f["realtime_factor_cpu"] / c["realtime_factor_cpu"] for c, f in pairs]
     ratio = {
